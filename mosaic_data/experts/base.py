@@ -1,0 +1,152 @@
+"""Scripted experts: state machines over ground-truth simulator poses, acting in the shared action space.
+
+An expert sees the true poses of the task's fixtures and objects and emits absolute world-frame end-effector
+targets (see :mod:`mosaic_data.tasks.base`). It never teleports: every action moves the commanded position at
+most ``max_step_m`` from the previous one and turns it at most ``max_turn_rad``, so recorded motion looks
+like a careful operator's at 20 Hz. Both robots use the same script; only their reach differs.
+
+A task's expert is a list of :class:`Phase` objects; each phase names a target pose (a function of the
+simulator state), a gripper command and when it is done. The expert advances through the phases in order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from mosaic_data.tasks.base import GRIPPER_CLOSED, GRIPPER_OPEN, MosaicTaskEnv, Variation
+
+TOP_DOWN = Rotation.from_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]))
+"""Gripper pointing straight down, the orientation both robots start near."""
+
+
+def top_down(yaw_rad: float = 0.0) -> Rotation:
+    """Top-down gripper orientation turned by ``yaw_rad`` about the world z axis."""
+    return Rotation.from_euler("z", yaw_rad) * TOP_DOWN
+
+
+@dataclass
+class Phase:
+    """One step of a scripted motion.
+
+    Attributes:
+        name: shown in debugging output and expert statistics.
+        target: returns the world position (3,) the grip site should go to, from the current env state.
+        gripper: ``GRIPPER_OPEN`` or ``GRIPPER_CLOSED`` during this phase.
+        tolerance_m: the phase is done when the grip site is within this distance of the target ...
+        done: ... or, if given, when this predicate of the env is true (checked in addition to reaching).
+        min_steps / max_steps: bounds on the phase's duration in control steps (``max_steps`` gives up).
+        orientation: target orientation; defaults to the expert's ``orientation``.
+        max_step_m: overrides the expert's speed limit for this phase (slow, careful moves).
+    """
+
+    name: str
+    target: Callable[[], np.ndarray]
+    gripper: float = GRIPPER_OPEN
+    tolerance_m: float = 0.01
+    done: Callable[[], bool] | None = None
+    min_steps: int = 0
+    max_steps: int = 80
+    orientation: Rotation | None = None
+    max_step_m: float | None = None
+
+
+class ScriptedExpert:
+    """Base class: runs the task's phases. Subclasses implement :meth:`phases` for their variation."""
+
+    max_step_m: float = 0.015
+    """Largest move of the commanded position in one 50 ms control step (0.3 m/s)."""
+    max_turn_rad: float = 0.08
+    max_lead_m: float = 0.06
+    """The commanded position never runs further than this ahead of the actual grip site."""
+    integral_gain: float = 0.15
+    max_offset_m: float = 0.04
+    """The OSC controller leaves a steady-state error of 1-3 cm on the Sawyer (torque limits, joint friction);
+    the expert integrates the tracking error into an offset on the sent target, like an operator would."""
+
+    def __init__(self, env: MosaicTaskEnv, variation: Variation) -> None:
+        self.env = env
+        self.variation = variation
+        self.orientation = TOP_DOWN
+        self.reset()
+
+    # ------------------------------------------------------------------ API
+    def reset(self) -> None:
+        """Forget progress; call after every ``env.reset``."""
+        self._phases: list[Phase] | None = None
+        self._phase_index = 0
+        self._phase_steps = 0
+        self._command_pos: np.ndarray | None = None
+        self._command_rot: Rotation | None = None
+        self._offset = np.zeros(3)
+        self.retries = 0
+
+    @property
+    def phase_name(self) -> str:
+        if self._phases is None:
+            return "start"
+        return self._phases[min(self._phase_index, len(self._phases) - 1)].name
+
+    @property
+    def finished(self) -> bool:
+        return self._phases is not None and self._phase_index >= len(self._phases)
+
+    def act(self, obs=None, env=None) -> np.ndarray:
+        """Next action (7,) for the current simulator state; ``obs`` and ``env`` are accepted for API symmetry."""
+        if self._phases is None:
+            self._phases = self.phases()
+            self._command_pos = self.env.eef_pos
+            self._command_rot = self.env.eef_rotation
+        phase = self._phases[min(self._phase_index, len(self._phases) - 1)]
+        target = np.asarray(phase.target(), dtype=float)
+        action = self._step_towards(target, phase.orientation or self.orientation, phase.max_step_m, phase.gripper)
+        self._advance(phase, target)
+        return action
+
+    # ------------------------------------------------------------------ subclass hook
+    def phases(self) -> list[Phase]:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ internals
+    def _step_towards(self, target: np.ndarray, orientation: Rotation, max_step: float | None, gripper: float) -> np.ndarray:
+        max_step = self.max_step_m if max_step is None else max_step
+        delta = target - self._command_pos
+        distance = np.linalg.norm(delta)
+        if distance > max_step:
+            delta = delta * (max_step / distance)
+        proposal = self._command_pos + delta
+        actual = self.env.eef_pos
+        lead = proposal - actual
+        if np.linalg.norm(lead) > self.max_lead_m:
+            proposal = actual + lead * (self.max_lead_m / np.linalg.norm(lead))
+        self._command_pos = proposal
+        self._offset = np.clip(
+            self._offset + self.integral_gain * (self._command_pos - actual), -self.max_offset_m, self.max_offset_m
+        )
+        self._command_rot = _turn_towards(self._command_rot, orientation, self.max_turn_rad)
+        sent_pos = self._command_pos + self._offset
+        return np.concatenate([sent_pos, self._command_rot.as_rotvec(), [gripper]]).astype(np.float32)
+
+    def _advance(self, phase: Phase, target: np.ndarray) -> None:
+        if self._phase_index >= len(self._phases):
+            return
+        self._phase_steps += 1
+        reached = np.linalg.norm(self.env.eef_pos - target) < phase.tolerance_m
+        if phase.done is not None:
+            reached = reached or phase.done()
+        if (reached and self._phase_steps >= phase.min_steps) or self._phase_steps >= phase.max_steps:
+            self._phase_index += 1
+            self._phase_steps = 0
+
+
+def _turn_towards(current: Rotation, goal: Rotation, max_turn: float) -> Rotation:
+    angle = (current.inv() * goal).magnitude()
+    if angle <= max_turn:
+        return goal
+    return Slerp([0.0, 1.0], Rotation.concatenate([current, goal]))(max_turn / angle)
+
+
+__all__ = ["GRIPPER_CLOSED", "GRIPPER_OPEN", "Phase", "ScriptedExpert", "TOP_DOWN", "top_down"]

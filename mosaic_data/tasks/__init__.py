@@ -1,0 +1,28 @@
+"""The MOSAIC task suite: one module per task, each a robosuite environment class on :mod:`.base`."""
+
+from __future__ import annotations
+
+from mosaic_data.tasks.base import ROBOTS, MosaicTaskEnv, Variation, validate_robot
+from mosaic_data.tasks.door import Door
+
+TASKS: dict[str, type[MosaicTaskEnv]] = {
+    "door": Door,
+}
+"""Task key -> environment class, in the paper's order."""
+
+
+def get_task_class(task: str) -> type[MosaicTaskEnv]:
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}: choose one of {', '.join(TASKS)}")
+    return TASKS[task]
+
+
+def make_task_env(task: str, variation: int = 0, robot: str = "panda", **kwargs) -> MosaicTaskEnv:
+    """Build the robosuite environment of ``task`` for one variation and robot."""
+    task_class = get_task_class(task)
+    task_class.validate_variation(variation)
+    validate_robot(robot)
+    return task_class(variation=variation, robot=robot, **kwargs)
+
+
+__all__ = ["ROBOTS", "TASKS", "MosaicTaskEnv", "Variation", "get_task_class", "make_task_env"]
