@@ -20,6 +20,7 @@ Conventions shared by every task (the same for the Panda agent and the Sawyer de
 from __future__ import annotations
 
 import copy
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -30,7 +31,11 @@ from robosuite.controllers import load_composite_controller_config
 from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
 from robosuite.models.arenas import TableArena
 from robosuite.models.tasks import ManipulationTask
+from robosuite.utils.log_utils import ROBOSUITE_DEFAULT_LOGGER
 from scipy.spatial.transform import Rotation
+
+# robosuite logs every controller load at INFO; keep warnings and errors only.
+ROBOSUITE_DEFAULT_LOGGER.setLevel(logging.WARNING)
 
 ROBOTS: dict[str, str] = {"panda": "Panda", "sawyer": "Sawyer"}
 """Robot key -> robosuite robot name. The Panda is the agent, the Sawyer the demonstrator."""
@@ -125,6 +130,15 @@ class MosaicTaskEnv(ManipulationEnv):
                 f"(`mosaic-data tasks` lists them)"
             )
         return int(variation)
+
+    def set_variation(self, variation: int) -> None:
+        """Switch to another variation of the same scene; it takes effect at the next reset.
+
+        Every task builds all its fixtures and objects whatever the variation, so one environment can serve
+        all variations (much cheaper than building one per variation).
+        """
+        self.variation_index = self.validate_variation(variation)
+        self.variation = self.variations[self.variation_index]
 
     # ------------------------------------------------------------------ model
     def _load_model(self) -> None:

@@ -1,0 +1,140 @@
+"""``mosaic-data``: the data-side command line (task table, expert rollouts).
+
+Exit status: 0 on success, 1 when experts miss their success target, 2 on bad input (one-line error).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def _parse_int_list(text: str) -> list[int]:
+    try:
+        return [int(part) for part in text.split(",") if part.strip() != ""]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 0,3,5, got {text!r}") from None
+
+
+def _robots(choice: str) -> list[str]:
+    return ["panda", "sawyer"] if choice == "both" else [choice]
+
+
+def cmd_tasks(args: argparse.Namespace) -> int:
+    from mosaic_data.envs import gym_id
+    from mosaic_data.tasks import TASKS, get_task_class
+
+    tasks = [args.task] if args.task else list(TASKS)
+    total = 0
+    for task in tasks:
+        task_class = get_task_class(task)
+        print(f"{task} ({gym_id(task)}, {len(task_class.variations)} variations, horizon {task_class.horizon_steps} steps)")
+        for variation in task_class.variations:
+            print(f"  {variation.index:>2}  {variation.description}")
+        total += len(task_class.variations)
+    print(f"{len(tasks)} tasks, {total} variations")
+    return 0
+
+
+def cmd_experts(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from mosaic_data.rollout import SUCCESS_TARGET, expert_episodes, write_rerun, write_video
+    from mosaic_data.tasks import get_task_class
+
+    task_class = get_task_class(args.task)
+    variations = args.variations if args.variations is not None else [v.index for v in task_class.variations]
+    for variation in variations:
+        task_class.validate_variation(variation)
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    output = args.video or args.rerun
+    if output is not None:
+        _check_writable(output)
+    seeds = [args.seed + i for i in range(args.episodes)]
+    robots = _robots(args.robot)
+    record = output is not None
+    results: dict[tuple[str, int], list] = defaultdict(list)
+    recorded = []
+    total = len(robots) * len(variations) * len(seeds)
+    with tqdm(total=total, desc=f"{args.task} experts", unit="episode") as progress:
+        for robot in robots:
+            for episode in expert_episodes(args.task, robot, variations, seeds, record_frames=record):
+                results[(robot, episode.variation)].append(episode)
+                if record:
+                    recorded.append(episode)
+                progress.update(1)
+                progress.set_postfix(robot=robot, variation=episode.variation)
+    print(f"{'robot':<8}{'var':>4}  {'success':>8}  {'mean len':>8}  description")
+    all_ok = True
+    for (robot, variation), episodes in results.items():
+        rate = sum(e.success for e in episodes) / len(episodes)
+        mean_length = sum(e.length for e in episodes) / len(episodes)
+        flag = "" if rate >= SUCCESS_TARGET else "  <- below target"
+        all_ok &= rate >= SUCCESS_TARGET
+        print(f"{robot:<8}{variation:>4}  {rate:>8.0%}  {mean_length:>8.1f}  {task_class.variations[variation].description}{flag}")
+    if args.video:
+        write_video(args.video, recorded)
+        print(f"video written to {args.video}")
+    if args.rerun:
+        write_rerun(args.rerun, recorded)
+        print(f"rerun recording written to {args.rerun} (open with: rerun {args.rerun})")
+    if not all_ok:
+        print(f"some variations are below the {SUCCESS_TARGET:.0%} success target", file=sys.stderr)
+    return 0 if all_ok else 1
+
+
+def _check_writable(path: Path) -> None:
+    parent = path.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        pass
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise ValueError(f"cannot write {path}: its folder {parent} is missing or not writable")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mosaic-data", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    defaults = argparse.ArgumentDefaultsHelpFormatter
+
+    tasks = sub.add_parser("tasks", help="print the task and variation table", formatter_class=defaults)
+    tasks.add_argument("--task", default=None, help="only this task (default: all)")
+    tasks.set_defaults(func=cmd_tasks)
+
+    experts = sub.add_parser(
+        "experts", help="roll the scripted experts out and report success per variation", formatter_class=defaults
+    )
+    experts.add_argument("--task", required=True, help="task key, e.g. door (see `mosaic-data tasks`)")
+    experts.add_argument("--robot", default="both", choices=["panda", "sawyer", "both"])
+    experts.add_argument("--episodes", type=int, default=20, help="episodes (fresh seeds) per variation and robot")
+    experts.add_argument("--variations", type=_parse_int_list, default=None, help="e.g. 0,3 (default: all)")
+    experts.add_argument("--seed", type=int, default=0, help="first instance seed; episode k uses seed+k")
+    output = experts.add_mutually_exclusive_group()
+    output.add_argument("--video", type=Path, default=None, help="write all episodes to this mp4")
+    output.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
+    experts.set_defaults(func=cmd_experts)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"mosaic-data: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("mosaic-data: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

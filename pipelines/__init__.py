@@ -1,0 +1,1 @@
+"""Evaluation, experiment recipes and benchmarks built on mosaic_data and mosaic_policy."""

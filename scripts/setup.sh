@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# One-time set-up on a fresh machine (idempotent): Debian packages for headless rendering and video
+# decoding, a Python 3.12 virtual environment in .venv with the pinned stack, and this package installed
+# in editable mode. Source it (`source scripts/setup.sh`) or let scripts/demo.sh / scripts/test.sh call it.
+set -euo pipefail
+repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$repo_root"
+
+apt_packages=(libosmesa6 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libglx-mesa0 ffmpeg)
+missing=()
+for package in "${apt_packages[@]}"; do
+    dpkg -s "$package" >/dev/null 2>&1 || missing+=("$package")
+done
+if ((${#missing[@]})); then
+    echo "[setup] installing Debian packages: ${missing[*]}"
+    sudo_cmd=""
+    [ "$(id -u)" -eq 0 ] || sudo_cmd="sudo"
+    $sudo_cmd apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+if [ ! -x .venv/bin/python ]; then
+    if command -v pyenv >/dev/null 2>&1 && pyenv prefix 3.12.1 >/dev/null 2>&1; then
+        python312="$(pyenv prefix 3.12.1)/bin/python"
+    elif command -v python3.12 >/dev/null 2>&1; then
+        python312="$(command -v python3.12)"
+    else
+        echo "[setup] error: Python 3.12 not found: install it with 'pyenv install 3.12.1'" >&2
+        exit 1
+    fi
+    echo "[setup] creating .venv with $python312"
+    "$python312" -m venv .venv
+fi
+
+stamp=.venv/.mosaic-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -nt "$stamp" ]; then
+    echo "[setup] installing Python packages (first time: about 2 minutes, 7 GB)"
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e ".[test]"
+    touch "$stamp"
+fi
+
+export MUJOCO_GL="${MUJOCO_GL:-egl}"
+export HF_HUB_OFFLINE="${HF_HUB_OFFLINE:-1}"
+export WANDB_MODE="${WANDB_MODE:-disabled}"
+export PATH="$repo_root/.venv/bin:$PATH"

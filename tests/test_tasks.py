@@ -1,0 +1,159 @@
+"""The task suite on the real simulator, headless: scenes, images, success tests, determinism, bad input."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+import mosaic_data  # noqa: F401  (registers the gymnasium environments)
+from mosaic_data.envs import gym_id
+from mosaic_data.experts import make_expert
+from mosaic_data.rollout import run_expert_episode
+from mosaic_data.tasks import TASKS, get_task_class, make_task_env
+from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
+
+ROBOTS = ("panda", "sawyer")
+TASK_ROBOT = [(task, robot) for task in TASKS for robot in ROBOTS]
+
+
+def all_variations(task: str) -> list[int]:
+    return [variation.index for variation in get_task_class(task).variations]
+
+
+@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
+def test_every_variation_resets_and_renders_right_side_up(task_env_cache, task, robot):
+    for variation in all_variations(task):
+        env = task_env_cache(task, robot, variation)
+        env.reset_to_seed(variation)
+        image = env.render_agentview()
+        assert image.shape == (IMAGE_HEIGHT, IMAGE_WIDTH, 3) and image.dtype == np.uint8
+        assert image.std() > 20, "the image is (nearly) blank"
+        # The camera looks over the table towards the robot: the white table fills the bottom of the image,
+        # the darker floor and walls the top. An upside-down image has them the other way round.
+        top, bottom = image[: IMAGE_HEIGHT // 5].mean(), image[-IMAGE_HEIGHT // 5 :].mean()
+        assert bottom > top + 10, f"variation {variation}: image looks upside down (top {top:.0f}, bottom {bottom:.0f})"
+        state = env.robot_state()
+        assert state.shape == (STATE_DIM,) and np.all(np.isfinite(state))
+
+
+@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
+def test_expert_succeeds_on_every_variation(task_env_cache, task, robot):
+    failures = []
+    for variation in all_variations(task):
+        env = task_env_cache(task, robot, variation)
+        episode = run_expert_episode(env, seed=1000 + variation)
+        if not episode.success:
+            failures.append(variation)
+        else:
+            assert episode.length < env.horizon
+    assert not failures, f"{task}/{robot}: expert failed on variations {failures}"
+
+
+@pytest.mark.parametrize("task", list(TASKS))
+def test_another_variations_goal_is_not_success(task_env_cache, task):
+    """Pursue variation j's goal in variation i's scene: j's goal is reached, i's success never fires."""
+    n = len(get_task_class(task).variations)
+    pairs = [(0, n - 1), (n - 1, 0), (1, 0)]
+    for own, other in pairs:
+        env = task_env_cache(task, "panda", own)
+        env.reset_to_seed(7)
+        expert = make_expert(env, variation=other)
+        own_success_seen = False
+        for _ in range(env.horizon):
+            env.step(expert.act())
+            own_success_seen |= env.check_success()
+            if env.check_success(variation=other):
+                break
+        assert env.check_success(variation=other), f"expert of variation {other} did not reach its goal"
+        assert not own_success_seen, f"variation {own} counted variation {other}'s goal as its success"
+
+
+@pytest.mark.parametrize("task", list(TASKS))
+def test_same_seed_same_scene_for_both_robots(task_env_cache, task):
+    def scene_state(robot: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        env = task_env_cache(task, robot, 0)
+        env.reset_to_seed(seed)
+        robot_qpos_ids = set(env.robot._ref_joint_pos_indexes) | set(env.robot._ref_gripper_joint_pos_indexes["right"])
+        scene_qpos = np.array([q for i, q in enumerate(env.sim.data.qpos) if i not in robot_qpos_ids])
+        fixture_ids = [i for i in range(env.sim.model.nbody) if not env.sim.model.body(i).name.startswith(("robot", "gripper", "fixed_mount"))]
+        return scene_qpos, env.sim.model.body_pos[fixture_ids].copy(), env.sim.data.qpos[env.robot._ref_joint_pos_indexes].copy()
+
+    panda_a, panda_layout_a, panda_joints_a = scene_state("panda", 5)
+    panda_b, panda_layout_b, panda_joints_b = scene_state("panda", 5)
+    np.testing.assert_array_equal(panda_layout_a, panda_layout_b)
+    np.testing.assert_array_equal(panda_a, panda_b)
+    np.testing.assert_array_equal(panda_joints_a, panda_joints_b)
+    sawyer, sawyer_layout, _ = scene_state("sawyer", 5)
+    np.testing.assert_allclose(sawyer_layout[: len(panda_layout_a)], panda_layout_a[: len(sawyer_layout)])
+    np.testing.assert_allclose(sawyer, panda_a)
+    _, other_layout, other_joints = scene_state("panda", 6)
+    assert not np.allclose(other_layout, panda_layout_a) or not np.allclose(other_joints, panda_joints_a)
+
+
+def test_gymnasium_api_matches_the_issue_example():
+    env = gymnasium.make("mosaic/Door-v0", variation=1, robot="panda", render_mode="rgb_array")
+    try:
+        obs, info = env.reset(seed=3)
+        assert obs["pixels"]["agentview"].shape == (IMAGE_HEIGHT, IMAGE_WIDTH, 3)
+        assert obs["agent_pos"].shape == (STATE_DIM,) and obs["agent_pos"].dtype == np.float32
+        assert info["task"] == get_task_class("door").variations[1].description
+        expert = make_expert(env)
+        other = make_expert(env, variation=2)
+        assert other.variation.index == 2
+        for _ in range(env.unwrapped.horizon):
+            obs, reward, terminated, truncated, info = env.step(expert.act(obs, env))
+            if terminated or truncated:
+                break
+        assert terminated and info["is_success"] and reward == 1.0
+        assert env.render().shape == (IMAGE_HEIGHT, IMAGE_WIDTH, 3)
+        again, _ = env.reset(seed=3)
+        np.testing.assert_allclose(again["agent_pos"], env.reset(seed=3)[0]["agent_pos"])
+    finally:
+        env.close()
+
+
+def test_every_task_is_registered_with_gymnasium():
+    for task in TASKS:
+        assert gym_id(task) in gymnasium.registry
+
+
+def test_gymnasium_env_checker_passes():
+    from gymnasium.utils.env_checker import check_env
+
+    env = gymnasium.make("mosaic/Door-v0", robot="sawyer", image_height=48, image_width=64)
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+    finally:
+        env.close()
+
+
+def test_bad_input_gives_clear_errors():
+    with pytest.raises(ValueError, match="unknown task 'doors'.*door"):
+        make_task_env("doors")
+    with pytest.raises(ValueError, match=r"unknown variation 4 for task 'door'.*0\.\.3"):
+        make_task_env("door", variation=4)
+    with pytest.raises(ValueError, match="unknown variation -1"):
+        make_task_env("door", variation=-1)
+    with pytest.raises(ValueError, match="unknown robot 'ur5'.*panda, sawyer"):
+        make_task_env("door", robot="ur5")
+    with pytest.raises(ValueError, match="unknown variation 9"):
+        gymnasium.make("mosaic/Door-v0", variation=9)
+    env = gymnasium.make("mosaic/Door-v0", observe_image=False)
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="action must have 7 values"):
+            env.step(np.zeros(6))
+        with pytest.raises(ValueError, match="NaN"):
+            env.step(np.full(7, np.nan))
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
+def test_expert_success_table_over_20_seeds(task_env_cache, task, robot):
+    for variation in all_variations(task):
+        env = task_env_cache(task, robot, variation)
+        successes = sum(run_expert_episode(env, seed).success for seed in range(20))
+        assert successes >= 19, f"{task}/{robot}/variation {variation}: {successes}/20"
