@@ -1,6 +1,7 @@
-"""``mosaic-data``: the data-side command line (task table, expert rollouts).
+"""``mosaic-data``: the data-side command line (task table, expert rollouts, dataset collection and tools).
 
-Exit status: 0 on success, 1 when experts miss their success target, 2 on bad input (one-line error).
+Exit status: 0 on success, 1 when experts miss their success target, a collection cannot finish or a dataset
+fails validation, 2 on bad input (one-line error), 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ import os
 import sys
 from collections import defaultdict
 from pathlib import Path
+
+from mosaic_data.collection import CollectionError
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -120,6 +123,10 @@ def build_parser() -> argparse.ArgumentParser:
     output.add_argument("--video", type=Path, default=None, help="write all episodes to this mp4")
     output.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
     experts.set_defaults(func=cmd_experts)
+
+    from mosaic_data.collection.cli import add_collection_commands
+
+    add_collection_commands(sub)
     return parser
 
 
@@ -131,6 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as error:
         print(f"mosaic-data: error: {error}", file=sys.stderr)
         return 2
+    except CollectionError as error:  # e.g. an expert that gives up during collection: not a bad input
+        print(f"mosaic-data: error: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("mosaic-data: interrupted", file=sys.stderr)
         return 130

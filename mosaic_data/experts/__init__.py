@@ -4,10 +4,16 @@ from __future__ import annotations
 
 from mosaic_data.experts.base import Phase, ScriptedExpert
 from mosaic_data.experts.door import DoorExpert
+from mosaic_data.experts.drawer import DrawerExpert
+from mosaic_data.experts.press_button import PressButtonExpert
+from mosaic_data.experts.stack_block import StackBlockExpert
 from mosaic_data.tasks import MosaicTaskEnv
 
 EXPERTS: dict[str, type[ScriptedExpert]] = {
     "door": DoorExpert,
+    "drawer": DrawerExpert,
+    "press_button": PressButtonExpert,
+    "stack_block": StackBlockExpert,
 }
 
 

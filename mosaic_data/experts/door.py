@@ -1,9 +1,11 @@
 """Door expert: reach the handle bar past the door's free edge, then swing it about the hinge.
 
-Push: the open fingers press the bar's robot-side face and the target circles away from the robot.
-Pull: the open fingers drop into the gap between the bar and the door plane and hook the bar back.
-The target is always the contact point rotated a little further than the door's current angle about the
-hinge, so the hand follows the door's arc instead of fighting the hinge.
+Push: the closed fingers go down just in front of the bar and press its robot-side face.
+Pull: the closed fingers go straight down into the gap between the bar and the door plane (past the door's
+free edge nothing stands behind the bar) and hook the bar's back.
+The target is then the contact point rotated a little further than the door's current angle about the
+hinge, so the hand follows the door's arc instead of fighting the hinge, and the hand turns with the door so
+that its long side stays along the door plane.
 """
 
 from __future__ import annotations
@@ -11,53 +13,105 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mosaic_data.experts.base import GRIPPER_OPEN, Phase, ScriptedExpert, top_down
-from mosaic_data.tasks.door import SUCCESS_ANGLE_RAD, Door
+from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, top_down
+from mosaic_data.tasks.door import OPENING_PER_YAW, SUCCESS_ANGLE_RAD, Door
 
-APPROACH_HEIGHT_M = 0.10
+APPROACH_HEIGHT_M = 0.12
+"""Above the handle bar, where the fingers close; the door's top edge is 0.074 m above the bar."""
+PUSH_STANDOFF_M = 0.04
+"""Gap between the fingers and the bar's robot-side face when they go down (push)."""
+PULL_GAP_FRACTION = 0.5
+"""Where the fingers go down between the door plane (0) and the bar's axis (1) (pull)."""
+PULL_OUTWARD_M = 0.02
+"""How far past the grip point, towards the bar's free end, the fingers go down (pull): clear of the door's edge."""
+PRESS_M = 0.006
+"""How far past the bar's surface the contact target lies, so the fingers keep pressing it."""
+ENGAGED_ANGLE_RAD = 0.03
+"""The fingers are on the bar once the door has turned this much."""
 LEAD_ANGLE_RAD = 0.25
 TARGET_ANGLE_RAD = SUCCESS_ANGLE_RAD + 0.2
+SETTLED_TURN_RAD = 0.1
+HAND_YAW_RAD = {"left": np.pi / 2, "right": -np.pi / 2}
+"""Top-down hand turned so that the fingers spread along the closed door's plane, the hand's x axis pointing
+to the door's free edge (mirror-symmetric for the mirrored doors)."""
 
 
 class DoorExpert(ScriptedExpert):
     env: Door
 
     def phases(self) -> list[Phase]:
-        # Fingers spread along the door plane, so the wide hand stays on the robot's side of the door.
-        self.orientation = top_down(np.pi / 2)
         door = self.variation.params["door"]
+        hand_yaw = HAND_YAW_RAD[door]
+        self.orientation = top_down(hand_yaw)
         sign = 1.0 if self.variation.params["swing"] == "push" else -1.0
         env = self.env
         hinge = env.hinge_position(door)
         grip = env.handle_grip_position(door)
-        angle0 = env.opening_angle(door)
+        yaw_sign = sign * OPENING_PER_YAW[door]  # which way the door turns about world z
+        angle0 = env.door_yaw(door)
+        opening0 = env.opening_angle(door)
         # Robot-side normal of the door plane at the door's current angle.
         normal = Rotation.from_euler("z", angle0).apply([-1.0, 0.0, 0.0])
-        if sign > 0:  # in front of the bar, on the robot's side
-            contact = grip + normal * (env.handle_bar_radius_m + 0.022)
-        else:  # between the bar and the door plane
-            contact = grip - normal * (env.handle_bar_offset_m * 0.5)
-        contact[2] -= 0.005
+        bar_radius = env.handle_bar_radius_m
+        if sign > 0:  # in front of the bar, then press its robot-side face
+            down = grip + normal * (bar_radius + PUSH_STANDOFF_M)
+            contact = grip + normal * (bar_radius - PRESS_M)
+        else:  # in the gap behind the bar, towards its free end (away from the door's edge), then hook its back
+            along_door = grip - hinge
+            along_door[2] = 0.0
+            along_door -= normal * np.dot(along_door, normal)
+            along_door /= np.linalg.norm(along_door)
+            down = grip - normal * (env.handle_bar_offset_m * PULL_GAP_FRACTION) + along_door * PULL_OUTWARD_M
+            contact = grip - normal * (bar_radius - PRESS_M)
+        for point in (down, contact):
+            point[2] -= 0.005
         contact_local = Rotation.from_euler("z", -angle0).apply(contact - hinge)
+        above = down + np.array([0.0, 0.0, APPROACH_HEIGHT_M])
 
         def on_arc(angle: float) -> np.ndarray:
             return hinge + Rotation.from_euler("z", angle).apply(contact_local)
 
-        def swing_target() -> np.ndarray:
-            return on_arc(env.opening_angle(door) + sign * LEAD_ANGLE_RAD)
+        def follow_door(offset_rad: float) -> np.ndarray:
+            yaw = env.door_yaw(door)
+            self.orientation = top_down(hand_yaw + yaw - angle0)
+            return on_arc(yaw + offset_rad)
+
+        def settled_above() -> bool:
+            """Over the handle and turned: turning the wrist fast on the way down would throw the fingers off."""
+            turned = (env.eef_rotation.inv() * self.orientation).magnitude() < SETTLED_TURN_RAD
+            return turned and np.linalg.norm(env.eef_pos - above) < 0.015
 
         def swung_enough() -> bool:
             return sign * env.opening_angle(door) > TARGET_ANGLE_RAD
 
-        above = contact + np.array([0.0, 0.0, APPROACH_HEIGHT_M])
         return [
-            Phase("approach", lambda: above, GRIPPER_OPEN, tolerance_m=0.02, max_steps=60),
-            Phase("descend", lambda: contact, GRIPPER_OPEN, tolerance_m=0.01, max_steps=40, max_step_m=0.01),
-            Phase("swing", swing_target, GRIPPER_OPEN, tolerance_m=0.0, done=swung_enough, max_steps=80, max_step_m=0.01),
+            Phase("approach", lambda: above, GRIPPER_OPEN, tolerance_m=0.0, done=settled_above, max_steps=60),
+            Phase(
+                "close", lambda: above, GRIPPER_CLOSED, tolerance_m=0.0, done=settled_above, min_steps=5, max_steps=12
+            ),
+            Phase("descend", lambda: down, GRIPPER_CLOSED, tolerance_m=0.012, max_steps=40, max_step_m=0.01),
+            Phase(
+                "engage",
+                lambda: contact,
+                GRIPPER_CLOSED,
+                tolerance_m=0.012,
+                done=lambda: sign * (env.opening_angle(door) - opening0) > ENGAGED_ANGLE_RAD,
+                max_steps=15,
+                max_step_m=0.006,
+            ),
+            Phase(
+                "swing",
+                lambda: follow_door(yaw_sign * LEAD_ANGLE_RAD),
+                GRIPPER_CLOSED,
+                tolerance_m=0.0,
+                done=swung_enough,
+                max_steps=80,
+                max_step_m=0.01,
+            ),
             Phase(
                 "retreat",
-                lambda: on_arc(env.opening_angle(door) - sign * 0.05) + np.array([0.0, 0.0, APPROACH_HEIGHT_M]),
-                GRIPPER_OPEN,
+                lambda: follow_door(-yaw_sign * 0.05) + np.array([0.0, 0.0, APPROACH_HEIGHT_M]),
+                GRIPPER_CLOSED,
                 tolerance_m=0.02,
                 max_steps=30,
             ),

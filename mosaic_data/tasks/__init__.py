@@ -4,9 +4,15 @@ from __future__ import annotations
 
 from mosaic_data.tasks.base import ROBOTS, MosaicTaskEnv, Variation, validate_robot
 from mosaic_data.tasks.door import Door
+from mosaic_data.tasks.drawer import Drawer
+from mosaic_data.tasks.press_button import PressButton
+from mosaic_data.tasks.stack_block import StackBlock
 
 TASKS: dict[str, type[MosaicTaskEnv]] = {
     "door": Door,
+    "drawer": Drawer,
+    "press_button": PressButton,
+    "stack_block": StackBlock,
 }
 """Task key -> environment class, in the paper's order."""
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -158,6 +159,20 @@ class MosaicTaskEnv(ManipulationEnv):
             mujoco_robots=[robot.robot_model for robot in self.robots],
             mujoco_objects=self._load_task_objects(),
         )
+        self._exclude_self_contacts()
+
+    # robosuite 1.5.1's Sawyer rests its first link on its arm base; MuJoCo does not filter that contact
+    # (the base is welded to the world), so the base joint j0 is locked and the arm can only reach sideways
+    # with its other joints, leaving centimetres of tracking error.
+    _EXCLUDED_CONTACTS: ClassVar[dict[str, tuple[tuple[str, str], ...]]] = {
+        "sawyer": (("robot0_right_arm_base_link", "robot0_right_l0"),),
+    }
+
+    def _exclude_self_contacts(self) -> None:
+        body_names = {body.get("name") for body in self.model.worldbody.iter("body")}
+        for first, second in self._EXCLUDED_CONTACTS.get(self.robot_key, ()):
+            if first in body_names and second in body_names:
+                self.model.contact.append(ET.Element("exclude", body1=first, body2=second))
 
     def _load_task_objects(self) -> list:
         raise NotImplementedError

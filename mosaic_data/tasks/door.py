@@ -2,8 +2,9 @@
 
 Variation ``i``: door ``i // 2`` (0 = left, blue-grey; 1 = right, copper), swing direction ``i % 2``
 (0 = push it away from the robot, 1 = pull it towards the robot). Both doors are double-acting gates built
-from Meta-World's door and handle meshes, hinged on their left post, with the pull handle's bar reaching past
-the free edge (where both experts act on it).
+from Meta-World's door and handle meshes, hung on posts in the middle of the table (the left door is the
+mirror image of the right one), with the pull handle's bar reaching past the outer free edge, where both
+experts act on it.
 
 Success: the asked door's hinge is past 0.4 rad in the asked direction.
 """
@@ -20,8 +21,9 @@ from mosaic_data.tasks.fixtures import FixtureBuilder
 DOOR_NAMES = ("left", "right")
 DOOR_COLOURS = {"left": (0.32, 0.38, 0.52, 1.0), "right": (0.62, 0.36, 0.18, 1.0)}
 SWINGS = ("push", "pull")
+OPENING_PER_YAW = {"left": -1.0, "right": 1.0}
 SUCCESS_ANGLE_RAD = 0.4
-DOOR_SCALE = 0.75
+DOOR_SCALE = 0.6
 """Meta-World's door scaled so that two fit side by side in the Panda's workspace."""
 
 # Geometry in Meta-World's door frame (x along the door from the hinge, -y towards the robot), unscaled.
@@ -45,9 +47,11 @@ def _variations() -> tuple[Variation, ...]:
 class Door(MosaicTaskEnv):
     task_name: ClassVar[str] = "door"
     variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 120
-    # Where each door's hinge axis stands (x, y) at the centre of the instance distribution.
-    hinge_xy: ClassVar[dict[str, tuple[float, float]]] = {"left": (0.08, 0.33), "right": (0.08, -0.08)}
+    horizon_steps: ClassVar[int] = 130
+    # Where each door's hinge axis stands (x, y) at the centre of the instance distribution: close to the robot
+    # and shifted to its left, where the Sawyer (whose arm barely reaches past y = -0.27 here) reaches both grips
+    # (y from -0.23 to +0.45) as well as the Panda.
+    hinge_xy: ClassVar[dict[str, tuple[float, float]]] = {"left": (0.0, 0.17), "right": (0.0, 0.05)}
     placement_jitter_m: ClassVar[float] = 0.03
     hinge_height_m: ClassVar[float] = 0.15 * DOOR_SCALE
 
@@ -65,10 +69,13 @@ class Door(MosaicTaskEnv):
         metal = fixture.material("metal", (0.75, 0.75, 0.75, 1.0), texture="metal1.png", shininess=0.8)
         # Fixture origin on the hinge axis at table height; inner body turns Meta-World's +y into robosuite's +x.
         fixture.open_body("frame", euler=(0, 0, -np.pi / 2))
-        post_height = 0.16
-        fixture.solid_box((0.014, 0.018, post_height), metal, pos=(-0.03, 0, post_height))
-        fixture.solid_box((0.06, 0.06, 0.008), metal, pos=(-0.03, 0, 0.008))
-        fixture.open_body("door_link", pos=(0, 0, 0.15 * s))
+        post_height = 0.1
+        post_x = 0.03 if name == "left" else -0.03
+        fixture.solid_box((0.014, 0.018, post_height), metal, pos=(post_x, 0, post_height))
+        fixture.solid_box((0.05, 0.05, 0.008), metal, pos=(post_x, 0, 0.008))
+        # The left door is the right one turned upside down about its normal: it opens to the robot's left.
+        mirror = (0, np.pi, 0) if name == "left" else (0, 0, 0)
+        fixture.open_body("door_link", pos=(0, 0, 0.15 * s), euler=mirror)
         fixture.joint("hinge", "hinge", (0, 0, 1), (-1.4, 1.4), damping=0.5, frictionloss=0.05)
         fixture.visual_mesh(door_mesh, panel, pos=(0.185 * s, 0, 0))
         fixture.visual_mesh(handle_mesh, metal, pos=(0.325 * s, -0.062 * s, 0), euler=(1.57, 0, 0))
@@ -99,9 +106,18 @@ class Door(MosaicTaskEnv):
     def hinge_joint(door: str) -> str:
         return f"{door}_door_hinge"
 
+    def door_yaw(self, door: str) -> float:
+        """Rotation of the door about the world's +z axis since it was closed (the hinge axis may point down)."""
+        joint_id = self.sim.model.joint_name2id(self.hinge_joint(door))
+        return self.joint_value(self.hinge_joint(door)) * float(np.sign(self.sim.data.xaxis[joint_id][2]))
+
     def opening_angle(self, door: str) -> float:
-        """Signed hinge angle, positive when the door swung away from the robot (pushed)."""
-        return self.joint_value(self.hinge_joint(door))
+        """Signed opening, positive when the door swung away from the robot (pushed), negative when pulled.
+
+        The right door's free edge points to -y and the left door's to +y, so pushing is a positive yaw for the
+        right door and a negative yaw for the left one.
+        """
+        return self.door_yaw(door) * OPENING_PER_YAW[door]
 
     def hinge_position(self, door: str) -> np.ndarray:
         return np.array(self.sim.data.xpos[self.body_id(f"{door}_door_door_link")])

@@ -1,0 +1,380 @@
+"""``mosaic-data collect``: expert episodes of every variation, for both robots, into LeRobot datasets.
+
+Flow: check every input before anything is written; for each (task, robot) dataset take a lock on its
+staging folder and list the shards not yet committed (a resumed run skips the others); let worker processes
+write the shards; merge each dataset's shards with LeRobot's aggregation as soon as they are all there; with
+``--task all`` merge the per-task datasets into ``mosaic/all_<robot>``.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import multiprocessing
+import os
+import queue
+import shutil
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mosaic_data.collection import CollectionError
+from mosaic_data.collection.merge import aggregate_into, is_complete_merge, merge_datasets
+from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
+from mosaic_data.collection.plan import MAX_EPISODES, CollectionSettings, DatasetJob, ShardSpec
+from mosaic_data.collection.schema import (
+    dataset_root,
+    is_lerobot_dataset,
+    merged_repo_id_for,
+    schema_mismatch,
+)
+from mosaic_data.collection.worker import TEMPORARY_MARK, ShardResult, read_shard_records, worker_main
+from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
+
+ALL_TASKS = "all"
+PLAN_NAME = "plan.json"
+LOCK_NAME = "lock"
+WORKER_THREAD_VARIABLES = ("LP_NUM_THREADS", "OMP_NUM_THREADS")
+"""One thread each for llvmpipe (the renderer) and OpenMP: the workers are the parallelism."""
+
+
+@dataclass
+class CollectRequest:
+    """What the user asked for; see ``mosaic-data collect --help``."""
+
+    task: str
+    robots: list[str]
+    variations: list[int] | None = None
+    episodes: int = 100
+    workers: int = 1
+    output_dir: Path | None = None
+    seed: int = 0
+    overwrite: bool = False
+    image_height: int = IMAGE_HEIGHT
+    image_width: int = IMAGE_WIDTH
+
+
+@dataclass
+class DatasetOutcome:
+    repo_id: str
+    root: Path
+    status: str
+    episodes: int = 0
+    frames: int = 0
+    retries: int = 0
+
+
+@dataclass
+class CollectReport:
+    datasets: list[DatasetOutcome] = field(default_factory=list)
+    episodes_collected: int = 0
+    frames_collected: int = 0
+    wall_s: float = 0.0
+    rollout_s: float = 0.0
+    write_s: float = 0.0
+    worker_peak_rss_mb: float = 0.0
+
+
+# ---------------------------------------------------------------------- input checks
+def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
+    """The datasets to produce, after checking every input (raises ValueError naming the fix)."""
+    from mosaic_data.tasks import TASKS, get_task_class, validate_robot
+
+    if request.task == ALL_TASKS:
+        if request.variations is not None:
+            raise ValueError("--variations cannot be combined with --task all: variation indices differ per task")
+        tasks = list(TASKS)
+    else:
+        tasks = [request.task]
+        get_task_class(request.task)
+    for robot in request.robots:
+        validate_robot(robot)
+    if not 1 <= request.episodes <= MAX_EPISODES:
+        raise ValueError(f"--episodes must be between 1 and {MAX_EPISODES}, got {request.episodes}")
+    if request.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {request.workers}")
+    if request.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {request.seed}")
+    if request.variations is not None:
+        if not request.variations:
+            raise ValueError("--variations is empty: give indices such as 0,3,5")
+        if len(set(request.variations)) != len(request.variations):
+            raise ValueError(f"--variations lists an index twice: {','.join(map(str, request.variations))}")
+    _check_writable(request.output_dir)
+    jobs = []
+    for task in tasks:
+        task_class = get_task_class(task)
+        variations = request.variations if request.variations is not None else [v.index for v in task_class.variations]
+        for variation in variations:
+            task_class.validate_variation(variation)
+        for robot in request.robots:
+            settings = CollectionSettings(
+                task=task,
+                robot=robot,
+                variations=tuple(sorted(variations)),
+                episodes_per_variation=request.episodes,
+                base_seed=request.seed,
+                image_height=request.image_height,
+                image_width=request.image_width,
+            )
+            jobs.append(DatasetJob(settings, request.output_dir))
+    return jobs
+
+
+def source_of(job: DatasetJob) -> dict[str, Any]:
+    """How a dataset was made, as recorded in its sidecar; equal sources mean the dataset is already complete."""
+    return {"repo_id": job.repo_id, "task": job.settings.task, "robot": job.settings.robot, "settings": job.settings.to_json()}
+
+
+def _check_writable(output_dir: Path | None) -> None:
+    from mosaic_data.collection.schema import default_output_dir
+
+    target = Path(output_dir if output_dir is not None else default_output_dir()).expanduser().absolute()
+    existing = target
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write datasets under {target}: {existing} is not a writable folder (choose another --output-dir)")
+    if target.exists() and not target.is_dir():
+        raise ValueError(f"cannot write datasets under {target}: it is a file, not a folder (choose another --output-dir)")
+
+
+def _existing_dataset_state(root: Path, expected_sources: list[dict], request: CollectRequest) -> str:
+    """'absent', 'complete' (same sources), or raise unless ``--overwrite``; returns 'replace' with it."""
+    if not root.exists():
+        return "absent"
+    if request.overwrite:
+        return "replace"
+    if not is_lerobot_dataset(root):
+        raise ValueError(f"{root} exists but is not a LeRobot dataset: move it away, choose another --output-dir, or add --overwrite")
+    mismatch = schema_mismatch(root, request.image_height, request.image_width)
+    if mismatch is not None:
+        raise ValueError(f"{root} holds a dataset of another schema ({mismatch}): choose another --output-dir, or add --overwrite to replace it")
+    sidecar = read_sidecar(root)
+    if sidecar is None:
+        raise ValueError(f"{root} holds a LeRobot dataset that `mosaic-data collect` did not make (no meta/mosaic.json): choose another --output-dir, or add --overwrite")
+    if sidecar.get("sources") != expected_sources:
+        raise ValueError(
+            f"{root} was collected with other settings ({_settings_difference(sidecar.get('sources'), expected_sources)}): "
+            "rerun with the same options, or add --overwrite to replace it"
+        )
+    return "complete"
+
+
+def _settings_difference(found: list[dict] | None, expected: list[dict]) -> str:
+    if not found or len(found) != len(expected):
+        return f"{len(found or [])} sources instead of {len(expected)}"
+    for old, new in zip(found, expected):
+        for key, value in new.get("settings", {}).items():
+            if old.get("settings", {}).get(key) != value:
+                return f"{old.get('repo_id')}: {key} {old.get('settings', {}).get(key)} instead of {value}"
+    return "different sources"
+
+
+# ---------------------------------------------------------------------- collection
+def collect(request: CollectRequest, show_progress: bool = True) -> CollectReport:
+    """Collect, resume or leave alone the requested datasets (see the module docstring)."""
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    jobs = plan_jobs(request)
+    states = {job.repo_id: _existing_dataset_state(job.root, [source_of(job)], request) for job in jobs}
+    for job in jobs:
+        if states[job.repo_id] != "complete" and not request.overwrite:
+            _check_staging(job)
+    merged = []
+    if request.task == ALL_TASKS:
+        for robot in request.robots:
+            sources = [source_of(job) for job in jobs if job.settings.robot == robot]
+            root = dataset_root(request.output_dir, merged_repo_id_for(robot))
+            if _existing_dataset_state(root, sources, request) != "complete":
+                merged.append((robot, root))
+    # Everything has been checked: from here on we write.
+    report = CollectReport()
+    to_collect = [job for job in jobs if states[job.repo_id] != "complete"]
+    report.datasets = [
+        _outcome(job, "complete, left alone") for job in jobs if states[job.repo_id] == "complete"
+    ]
+    with _locked_staging(to_collect, request.overwrite) as pending_by_job:
+        pending = [spec for job in to_collect for spec in pending_by_job[job.repo_id]]
+        total = sum(job.total_episodes for job in to_collect)
+        already = total - sum(spec.num_episodes for spec in pending)
+        remaining_shards = {job.repo_id: len(pending_by_job[job.repo_id]) for job in to_collect}
+        jobs_by_repo = {job.repo_id: job for job in to_collect}
+        with tqdm(total=total, initial=already, desc="collect", unit="episode", disable=not show_progress or total == 0, dynamic_ncols=True) as progress:
+            def on_episode(record: dict) -> None:
+                progress.update(1)
+                progress.set_postfix_str(f"{record['task']}/{record['robot']} v{record['variation']}", refresh=False)
+
+            def on_shard(result: ShardResult) -> None:
+                report.episodes_collected += len(result.episodes)
+                report.frames_collected += result.frames
+                report.rollout_s += result.rollout_s
+                report.write_s += result.write_s
+                report.worker_peak_rss_mb = max(report.worker_peak_rss_mb, result.peak_rss_mb)
+                remaining_shards[result.repo_id] -= 1
+                if remaining_shards[result.repo_id] == 0:
+                    _finish_job(jobs_by_repo[result.repo_id])
+
+            for job in to_collect:  # resumed runs may have every shard already
+                if remaining_shards[job.repo_id] == 0:
+                    _finish_job(job)
+            if pending:
+                _run_workers(pending, request.workers, on_episode, on_shard)
+    report.datasets += [_outcome(job, "collected") for job in to_collect]
+    for robot, root in merged:
+        sources = [job.root for job in jobs if job.settings.robot == robot]
+        merge_datasets(sources, merged_repo_id_for(robot), root)
+        report.datasets.append(_outcome_of(merged_repo_id_for(robot), root, "merged"))
+    report.wall_s = time.perf_counter() - started
+    return report
+
+
+def _check_staging(job: DatasetJob) -> None:
+    plan_path = job.staging_dir / PLAN_NAME
+    if not plan_path.is_file():
+        return
+    try:
+        import json
+
+        staged = json.loads(plan_path.read_text())
+    except (OSError, ValueError):
+        return  # unreadable plan: written by a crashed run before it finished; it is replaced
+    if staged != source_of(job):
+        raise ValueError(
+            f"an unfinished collection of {job.repo_id} with other settings is in {job.staging_dir} "
+            f"({_settings_difference([staged], [source_of(job)])}): rerun with the same options to finish it, "
+            "or add --overwrite to start over"
+        )
+
+
+@contextmanager
+def _locked_staging(jobs: list[DatasetJob], overwrite: bool):
+    """Lock each job's staging folder, clean what a killed run left, and yield the shards still to do."""
+    handles = []
+    try:
+        pending: dict[str, list[ShardSpec]] = {}
+        for job in jobs:
+            staging = job.staging_dir
+            if overwrite and staging.exists():
+                _lock(staging, handles, job)
+                shutil.rmtree(staging)
+                handles.pop().close()
+            staging.mkdir(parents=True, exist_ok=True)
+            _lock(staging, handles, job)
+            write_json_atomically(staging / PLAN_NAME, source_of(job))
+            shards_dir = staging / "shards"
+            shards_dir.mkdir(exist_ok=True)
+            for leftover in shards_dir.iterdir():  # shards in flight when a previous run was killed
+                if TEMPORARY_MARK in leftover.name:
+                    shutil.rmtree(leftover, ignore_errors=True)
+            for leftover in job.root.parent.glob(f".{job.root.name}.merging-*"):
+                shutil.rmtree(leftover, ignore_errors=True)
+            pending[job.repo_id] = [spec for spec in job.shards() if not spec.is_done]
+        yield pending
+    finally:
+        for handle in handles:
+            handle.close()
+
+
+def _lock(staging: Path, handles: list, job: DatasetJob) -> None:
+    handle = open(staging / LOCK_NAME, "a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        raise ValueError(f"another `mosaic-data collect` is writing {job.repo_id} (lock {staging / LOCK_NAME}): wait for it to finish") from None
+    handles.append(handle)
+
+
+def _finish_job(job: DatasetJob) -> None:
+    """Merge a job's committed shards, in slot order, into its dataset and drop the staging folder."""
+    shards = job.shards()
+    records = []
+    for spec in shards:
+        records.extend(read_shard_records(spec.root))
+    episodes = [{"episode_index": index, **record} for index, record in enumerate(records)]
+    sidecar = build_sidecar(job.repo_id, [source_of(job)], episodes)
+    aggregate_into([(job.repo_id, spec.root) for spec in shards], job.repo_id, job.root, sidecar)
+    shutil.rmtree(job.staging_dir, ignore_errors=True)
+
+
+def _run_workers(pending: list[ShardSpec], workers: int, on_episode, on_shard) -> None:
+    """Run ``pending`` shards on ``workers`` spawned processes; stop them all on any error or Ctrl-C."""
+    context = multiprocessing.get_context("spawn")  # MuJoCo's GL contexts do not survive fork
+    shard_queue, event_queue = context.Queue(), context.Queue()
+    for spec in pending:
+        shard_queue.put(spec)
+    processes = [
+        context.Process(target=worker_main, args=(index, os.getpid(), shard_queue, event_queue), name=f"mosaic-collect-{index}")
+        for index in range(min(workers, len(pending)))
+    ]
+    for _ in processes:
+        shard_queue.put(None)
+    try:
+        with _worker_environment():
+            for process in processes:
+                process.start()
+        remaining = len(pending)
+        while remaining:
+            try:
+                kind, worker, payload = event_queue.get(timeout=1.0)
+            except queue.Empty:
+                crashed = [p for p in processes if p.exitcode not in (None, 0)]
+                if crashed:
+                    raise CollectionError(
+                        f"collection worker {crashed[0].name} died (exit code {crashed[0].exitcode}, e.g. out of memory): "
+                        "run the same command again to resume, with fewer --workers if memory is short"
+                    ) from None
+                continue
+            if kind == "episode":
+                on_episode(payload)
+            elif kind == "shard":
+                remaining -= 1
+                on_shard(payload)
+            elif kind == "error":
+                raise CollectionError(payload)
+    finally:
+        for process in processes:
+            if process.is_alive():
+                process.terminate()
+        for process in processes:
+            process.join(timeout=30)
+        shard_queue.cancel_join_thread()
+        event_queue.cancel_join_thread()
+
+
+@contextmanager
+def _worker_environment():
+    """Environment variables the spawned workers inherit (the parent's own are restored afterwards)."""
+    saved = {name: os.environ.get(name) for name in (*WORKER_THREAD_VARIABLES, "SVT_LOG")}
+    for name in WORKER_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder's banner on every episode, errors only
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _outcome(job: DatasetJob, status: str) -> DatasetOutcome:
+    return _outcome_of(job.repo_id, job.root, status)
+
+
+def _outcome_of(repo_id: str, root: Path, status: str) -> DatasetOutcome:
+    sidecar = read_sidecar(root) or {"episodes": []}
+    episodes = sidecar["episodes"]
+    return DatasetOutcome(
+        repo_id=repo_id,
+        root=root,
+        status=status,
+        episodes=len(episodes),
+        frames=sum(record["length"] for record in episodes),
+        retries=sum(record["attempts"] - 1 for record in episodes),
+    )

@@ -1,0 +1,180 @@
+"""``mosaic-data validate``: is a dataset whole and consistent? Returns a readable list of problems.
+
+Checks, in order: LeRobot's metadata loads; the sidecar exists and agrees with it; the schema is MOSAIC's;
+every data parquet file reads (a truncated file does not) and holds the frames the metadata announces,
+episode by episode (frame indices, ``next.done`` on the last frame only, one variation and the matching
+task string per episode); every episode count per variation matches the collection settings; every video
+file decodes, at the right size, to exactly the frames of the episodes it holds.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+from mosaic_data.collection.metadata import read_sidecar
+from mosaic_data.collection.schema import CAMERA_KEY, schema_mismatch
+
+
+def validate_dataset(root: Path) -> tuple[str, list[str]]:
+    """``(summary, problems)`` for the dataset at ``root``; no problems means it is valid."""
+    import json
+
+    root = Path(root)
+    problems: list[str] = []
+    try:
+        info = json.loads((root / "meta" / "info.json").read_text())
+    except (OSError, ValueError) as error:
+        return "", [f"meta/info.json cannot be read: {error}"]
+    sidecar = read_sidecar(root)
+    if sidecar is None:
+        problems.append("meta/mosaic.json is missing or unreadable: this is not a dataset made by `mosaic-data collect`")
+        sidecar = {"sources": [], "episodes": [], "tasks": {}}
+    sources = sidecar.get("sources") or []
+    if sources:
+        settings = sources[0]["settings"]
+        mismatch = schema_mismatch(root, settings["image_height"], settings["image_width"])
+        if mismatch is not None:
+            problems.append(f"schema: {mismatch}")
+    episodes_meta = _read_parquet_folder(root / "meta" / "episodes", problems)
+    data = _read_parquet_folder(root / "data", problems)
+    tasks = _read_tasks(root, problems)
+    total_episodes, total_frames = info.get("total_episodes"), info.get("total_frames")
+    if episodes_meta is not None and len(episodes_meta) != total_episodes:
+        problems.append(f"meta/episodes lists {len(episodes_meta)} episodes, info.json says {total_episodes}")
+    if data is not None and len(data) != total_frames:
+        problems.append(f"data holds {len(data)} frames, info.json says {total_frames}")
+    records = sidecar.get("episodes", [])
+    if sidecar is not None and len(records) != total_episodes:
+        problems.append(f"meta/mosaic.json lists {len(records)} episodes, info.json says {total_episodes}")
+    descriptions = {
+        (task, variation["index"]): variation["description"]
+        for task, table in sidecar.get("tasks", {}).items()
+        for variation in table["variations"]
+    }
+    if data is not None:
+        _check_frames(data, records, tasks, descriptions, problems)
+    _check_counts(sources, records, problems)
+    if episodes_meta is not None:
+        _check_videos(root, info, episodes_meta, problems)
+    collected_variations = {(record["task"], record["variation"]) for record in records}
+    summary = (
+        f"{total_episodes} episodes, {total_frames} frames, "
+        f"{len(collected_variations)} variations of {', '.join(sidecar.get('tasks', {})) or 'no task'}, "
+        f"robots {', '.join(sidecar.get('robots', [])) or 'unknown'}"
+    )
+    return summary, problems
+
+
+def _read_parquet_folder(folder: Path, problems: list[str]):
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    files = sorted(folder.glob("*/*.parquet"))
+    if not files:
+        problems.append(f"{folder.name}: no parquet files")
+        return None
+    tables = []
+    for path in files:
+        try:
+            tables.append(pq.read_table(path).to_pandas())
+        except Exception as error:  # pyarrow raises several types for truncated or garbled files
+            problems.append(f"{path.relative_to(folder.parent.parent if folder.name == 'episodes' else folder.parent)} cannot be read ({str(error).splitlines()[0]})")
+    if len(tables) != len(files):
+        return None
+    return pd.concat(tables, ignore_index=True)
+
+
+def _read_tasks(root: Path, problems: list[str]) -> dict[int, str]:
+    import pandas as pd
+
+    try:
+        tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
+    except Exception as error:
+        problems.append(f"meta/tasks.parquet cannot be read ({str(error).splitlines()[0]})")
+        return {}
+    return {int(index): str(task) for task, index in zip(tasks.index, tasks["task_index"])}
+
+
+def _check_frames(data, records: list[dict], tasks: dict[int, str], descriptions: dict, problems: list[str]) -> None:
+    import numpy as np
+
+    by_episode = {int(index): frames for index, frames in data.groupby("episode_index")}
+    for record in records:
+        index = record["episode_index"]
+        frames = by_episode.get(index)
+        where = f"episode {index}"
+        if frames is None:
+            problems.append(f"{where}: no frames in data/")
+            continue
+        frames = frames.sort_values("frame_index")
+        if len(frames) != record["length"]:
+            problems.append(f"{where}: {len(frames)} frames, meta/mosaic.json says {record['length']}")
+        if not np.array_equal(frames["frame_index"].to_numpy(), np.arange(len(frames))):
+            problems.append(f"{where}: frame indices are not 0..{len(frames) - 1}")
+        done = np.asarray(frames["next.done"].tolist()).reshape(-1)
+        if not done[-1] or done[:-1].any():
+            problems.append(f"{where}: next.done must be true on the last frame only")
+        if not np.asarray(frames["next.success"].tolist()).reshape(-1)[-1]:
+            problems.append(f"{where}: does not end in success (only successful episodes belong in the dataset)")
+        variations = set(np.asarray(frames["variation"].tolist()).reshape(-1).tolist())
+        if variations != {record["variation"]}:
+            problems.append(f"{where}: variation column {sorted(variations)}, meta/mosaic.json says {record['variation']}")
+        task_strings = {tasks.get(int(task_index), "?") for task_index in frames["task_index"]}
+        expected = descriptions.get((record["task"], record["variation"]))
+        if task_strings != {expected}:
+            problems.append(f"{where}: task string {sorted(task_strings)}, expected {expected!r}")
+    unknown = sorted(set(by_episode) - {record["episode_index"] for record in records})
+    if unknown:
+        problems.append(f"episodes {unknown[:5]} are in data/ but not in meta/mosaic.json")
+
+
+def _check_counts(sources: list[dict], records: list[dict], problems: list[str]) -> None:
+    counts = Counter((record["task"], record["robot"], record["variation"]) for record in records)
+    expected: Counter = Counter()  # a merged dataset may hold several sources of the same variation
+    for source in sources:
+        for variation in source["settings"]["variations"]:
+            expected[(source["task"], source["robot"], variation)] += source["settings"]["episodes_per_variation"]
+    for (task, robot, variation), wanted in sorted(expected.items()):
+        found = counts.get((task, robot, variation), 0)
+        if found != wanted:
+            problems.append(f"{task}/{robot} variation {variation}: {found} episodes, expected {wanted}")
+    seeds = Counter((record["task"], record["robot"], record["variation"], record["seed"]) for record in records)
+    duplicates = [key for key, count in seeds.items() if count > 1]
+    if duplicates:
+        problems.append(f"{len(duplicates)} episodes appear twice (same task, robot, variation and seed), e.g. {duplicates[0]}")
+
+
+def _check_videos(root: Path, info: dict, episodes_meta, problems: list[str]) -> None:
+    video_keys = [key for key, feature in info["features"].items() if feature["dtype"] == "video"]
+    for key in video_keys:
+        height, width = info["features"][key]["shape"][:2]
+        chunk_column, file_column = f"videos/{key}/chunk_index", f"videos/{key}/file_index"
+        expected_frames = episodes_meta.groupby([chunk_column, file_column])["length"].sum()
+        for (chunk, file), frames in expected_frames.items():
+            relative = info["video_path"].format(video_key=key, chunk_index=int(chunk), file_index=int(file))
+            decoded, shape, error = _count_video_frames(root / relative)
+            if error is not None:
+                problems.append(f"{relative} does not decode ({error})")
+            elif decoded != frames:
+                problems.append(f"{relative} decodes to {decoded} frames, its episodes need {frames}")
+            elif shape != (height, width):
+                problems.append(f"{relative} frames are {shape[0]}x{shape[1]}, the schema says {height}x{width}")
+    if key_missing := [key for key in video_keys if key != CAMERA_KEY]:
+        problems.append(f"unexpected video features {key_missing}")
+
+
+def _count_video_frames(path: Path) -> tuple[int, tuple[int, int] | None, str | None]:
+    import av
+
+    if not path.is_file():
+        return 0, None, "file missing"
+    count, shape = 0, None
+    try:
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                count += 1
+                shape = (frame.height, frame.width)
+    except Exception as error:  # av raises many error types for damaged streams
+        return count, shape, f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''} after {count} frames"
+    return count, shape, None

@@ -1,0 +1,164 @@
+"""Sinusoidal spatio-temporal encodings and multi-head non-local attention over demo and observation frames.
+
+Features are 5-D, (B, C, frames, h, w); queries, keys and values are 1x1x1 Conv3d projections.
+
+MOSAIC pattern: demo tokens self-attend across all demo frames; each observation frame attends to its own
+tokens and to the demo tokens, never to other observation frames. Every observation frame therefore gets the
+same temporal code ("the current frame") and its output does not depend on how many observation frames are
+in the batch: 7 frames in training and 1 at inference compute the same thing per frame (the original code's
+encodings differed between the two). The demo stream is updated by every layer and its keys/values at each
+layer depend on the demo only, so they can be computed once per episode and cached.
+"""
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+def sinusoidal_table(positions: Tensor, dim: int) -> Tensor:
+    """(len(positions), dim) sin/cos table, frequencies from 1 to 1/10000 as in the Transformer."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32) / max(half, 1))
+    angles = positions.float()[:, None] * freqs[None, :]
+    return torch.cat([angles.sin(), angles.cos()], dim=1)
+
+
+def spatio_temporal_encoding(channels: int, time_indices: list[int], height: int, width: int) -> Tensor:
+    """(channels, len(time_indices), height, width): a third of the channels each for time, row and column."""
+    part = 2 * (channels // 6)
+    t = sinusoidal_table(torch.tensor(time_indices), part)  # (T, part)
+    y = sinusoidal_table(torch.arange(height), part)  # (h, part)
+    x = sinusoidal_table(torch.arange(width), part)  # (w, part)
+    n_t = len(time_indices)
+    enc = torch.zeros(channels, n_t, height, width)
+    enc[:part] = t.T[:, :, None, None].expand(part, n_t, height, width)
+    enc[part : 2 * part] = y.T[:, None, :, None].expand(part, n_t, height, width)
+    enc[2 * part : 3 * part] = x.T[:, None, None, :].expand(part, n_t, height, width)
+    return enc
+
+
+class NonLocalAttentionLayer(nn.Module):
+    """One multi-head non-local block: attention with 1x1x1 Conv3d projections, residual, norm, 1x1x1 FFN."""
+
+    def __init__(self, channels: int, n_heads: int, temperature: float, dropout: float = 0.0):
+        super().__init__()
+        if channels % n_heads:
+            raise ValueError(f"channels ({channels}) must be divisible by n_attention_heads ({n_heads}).")
+        self.n_heads = n_heads
+        self.temperature = temperature
+        self.query = nn.Conv3d(channels, channels, 1)
+        self.key = nn.Conv3d(channels, channels, 1)
+        self.value = nn.Conv3d(channels, channels, 1)
+        self.out = nn.Conv3d(channels, channels, 1)
+        self.norm_attention = nn.LayerNorm(channels)
+        self.ffn = nn.Sequential(nn.Conv3d(channels, 2 * channels, 1), nn.ReLU(), nn.Conv3d(2 * channels, channels, 1))
+        self.norm_ffn = nn.LayerNorm(channels)
+        self.dropout = nn.Dropout(dropout)
+
+    # The 1x1x1 Conv3d modules are applied as pointwise linear maps on channel-last tokens: the same
+    # function and parameters, without the Conv3d kernel's overhead for tiny spatial sizes on CPU.
+    @staticmethod
+    def _pointwise(conv: nn.Conv3d, x: Tensor) -> Tensor:
+        """(..., C_in) channel-last -> (..., C_out)."""
+        return F.linear(x, conv.weight.flatten(1), conv.bias)
+
+    def _heads(self, x: Tensor) -> Tensor:
+        """(B, T, h, w, C) -> (B, heads, T, h*w, C/heads)."""
+        b, t, h, w, c = x.shape
+        return x.reshape(b, t, h * w, self.n_heads, c // self.n_heads).permute(0, 3, 1, 2, 4)
+
+    @staticmethod
+    def _merge(x: Tensor, like: Tensor) -> Tensor:
+        """(B, heads, T, h*w, C/heads) -> (B, T, h, w, C) shaped like `like`."""
+        return x.permute(0, 2, 3, 1, 4).reshape(like.shape)
+
+    def _attend(self, q: Tensor, k: Tensor, v: Tensor, return_weights: bool) -> tuple[Tensor, Tensor | None]:
+        if not return_weights:
+            return F.scaled_dot_product_attention(q, k, v, scale=1.0 / self.temperature), None
+        weights = torch.softmax(q @ k.transpose(-1, -2) / self.temperature, dim=-1)
+        return weights @ v, weights
+
+    def _residual(self, x: Tensor, attended: Tensor) -> Tensor:
+        """Channel-last in and out: norm(x + out(attended)), then norm(x + ffn(x))."""
+        x = self.norm_attention(x + self.dropout(self._pointwise(self.out, attended)))
+        hidden = F.relu(self._pointwise(self.ffn[0], x))
+        return self.norm_ffn(x + self.dropout(self._pointwise(self.ffn[2], hidden)))
+
+    def _qkv(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        return tuple(self._heads(self._pointwise(proj, x)) for proj in (self.query, self.key, self.value))
+
+    def demo_keys_values(self, demo: Tensor) -> tuple[Tensor, Tensor]:
+        """Keys and values of all demo tokens (demo: (B, C, D, h, w)), (B, heads, D*h*w, C/heads) each."""
+        x = demo.movedim(1, -1)
+        k, v = (self._heads(self._pointwise(proj, x)).flatten(2, 3) for proj in (self.key, self.value))
+        return k, v
+
+    def forward_demo(self, demo: Tensor, demo_k: Tensor, demo_v: Tensor) -> Tensor:
+        """Demo frames self-attend over all demo tokens (spatio-temporal)."""
+        x = demo.movedim(1, -1)
+        q = self._heads(self._pointwise(self.query, x))
+        b, n_h, d, hw, dh = q.shape
+        attended, _ = self._attend(q.flatten(2, 3), demo_k, demo_v, return_weights=False)
+        return self._residual(x, self._merge(attended.reshape(b, n_h, d, hw, dh), x)).movedim(-1, 1)
+
+    def forward_obs(
+        self, obs: Tensor, demo_k: Tensor, demo_v: Tensor, return_weights: bool = False
+    ) -> tuple[Tensor, Tensor | None]:
+        """Each observation frame attends to [its own tokens, all demo tokens]; weights (B, heads, T, hw, hw + D*hw)."""
+        x = obs.movedim(1, -1)
+        q, k, v = self._qkv(x)
+        t = q.shape[2]
+        keys = torch.cat([k, demo_k.unsqueeze(2).expand(-1, -1, t, -1, -1)], dim=3)
+        values = torch.cat([v, demo_v.unsqueeze(2).expand(-1, -1, t, -1, -1)], dim=3)
+        attended, weights = self._attend(q, keys, values, return_weights)
+        return self._residual(x, self._merge(attended, x)).movedim(-1, 1), weights
+
+    def forward_full(self, demo: Tensor, obs: Tensor) -> tuple[Tensor, Tensor]:
+        """Baseline: every token of every frame attends to every token (T-OSIL style)."""
+        x = torch.cat([demo, obs], dim=2).movedim(1, -1)
+        q, k, v = (t.flatten(2, 3) for t in self._qkv(x))
+        attended, _ = self._attend(q, k, v, return_weights=False)
+        b, n_h, _, dh = attended.shape
+        out = self._residual(x, self._merge(attended.reshape(b, n_h, x.shape[1], -1, dh), x)).movedim(-1, 1)
+        return out[:, :, : demo.shape[2]], out[:, :, demo.shape[2] :]
+
+
+class NonLocalAttentionStack(nn.Module):
+    """Layers of non-local attention; `encode_demo` once per demonstration, `attend_obs` per observation."""
+
+    def __init__(self, channels: int, n_layers: int, n_heads: int, temperature: float, dropout: float, pattern: str):
+        super().__init__()
+        self.pattern = pattern
+        self.layers = nn.ModuleList(
+            NonLocalAttentionLayer(channels, n_heads, temperature, dropout) for _ in range(n_layers)
+        )
+
+    def encode_demo(self, demo: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
+        """Demo features through every layer; returns the output and each layer's demo keys/values (the cache)."""
+        cache = []
+        for layer in self.layers:
+            k, v = layer.demo_keys_values(demo)
+            cache.append((k, v))
+            demo = layer.forward_demo(demo, k, v)
+        return demo, cache
+
+    def attend_obs(
+        self, obs: Tensor, cache: list[tuple[Tensor, Tensor]], return_weights: bool = False
+    ) -> tuple[Tensor, list[Tensor]]:
+        weights = []
+        for layer, (k, v) in zip(self.layers, cache, strict=True):
+            obs, w = layer.forward_obs(obs, k, v, return_weights)
+            if w is not None:
+                weights.append(w)
+        return obs, weights
+
+    def forward(self, demo: Tensor, obs: Tensor, return_weights: bool = False) -> tuple[Tensor, Tensor, list[Tensor]]:
+        if self.pattern == "full":
+            for layer in self.layers:
+                demo, obs = layer.forward_full(demo, obs)
+            return demo, obs, []
+        demo_out, cache = self.encode_demo(demo)
+        obs_out, weights = self.attend_obs(obs, cache, return_weights)
+        return demo_out, obs_out, weights

@@ -1,0 +1,90 @@
+"""Benchmark of ``mosaic-data collect``: frames/s against the bare env step+render rate, 1 vs 2 workers.
+
+Prints figures (it asserts nothing). All numbers come from this run on this machine:
+
+* bare: the task env stepping with the expert and rendering every frame, no writing (one process);
+* collect, 1 and 2 workers: the real pipeline (expert, retries, LeRobot writing, AV1 encoding, shard merge),
+  frames/s over the whole command including worker start-up and the final merge;
+* peak resident memory of a worker.
+
+Usage: ``MUJOCO_GL=egl python pipelines/bench/collect_bench.py --task door --episodes 4``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def bare_rate(task: str, robot: str, variations: list[int], episodes: int) -> tuple[float, int]:
+    """Frames/s of env step + render + expert, no dataset writing, in this process."""
+    from mosaic_data.collection.plan import episode_seed
+    from mosaic_data.rollout import run_expert_episode
+    from mosaic_data.tasks import make_task_env
+
+    frames, seconds = 0, 0.0
+    for variation in variations:
+        env = make_task_env(task, variation, robot)
+        try:
+            for slot in range(episodes):
+                started = time.perf_counter()
+                episode = run_expert_episode(env, episode_seed(0, variation, slot, 0), record_frames=True, record_final_frame=False)
+                seconds += time.perf_counter() - started
+                frames += episode.length
+        finally:
+            env.close()
+    return frames / seconds, frames
+
+
+def collect_rate(task: str, robot: str, variations: list[int], episodes: int, workers: int):
+    from mosaic_data.collection.collect import CollectRequest, collect
+
+    output = Path(tempfile.mkdtemp(prefix="mosaic_collect_bench_"))
+    try:
+        report = collect(
+            CollectRequest(task=task, robots=[robot], variations=variations, episodes=episodes, workers=workers, output_dir=output),
+            show_progress=False,
+        )
+    finally:
+        shutil.rmtree(output, ignore_errors=True)
+    return report
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--task", default="door")
+    parser.add_argument("--robot", default="panda")
+    parser.add_argument("--variations", default="0,1", help="comma-separated")
+    parser.add_argument("--episodes", type=int, default=2, help="per variation")
+    args = parser.parse_args()
+    variations = [int(v) for v in args.variations.split(",")]
+    print(f"task {args.task}, robot {args.robot}, variations {variations}, {args.episodes} episodes each, "
+          f"100x180 frames, {os.cpu_count()} CPUs")
+    bare, frames = bare_rate(args.task, args.robot, variations, args.episodes)
+    print(f"bare env step+render+expert (1 process): {bare:6.1f} frames/s ({frames} frames)")
+    one = None
+    for workers in (1, 2):
+        report = collect_rate(args.task, args.robot, variations, args.episodes, workers)
+        rate = report.frames_collected / report.wall_s
+        steady = report.frames_collected / (report.rollout_s + report.write_s)
+        line = (
+            f"collect, {workers} worker(s): {rate:6.1f} frames/s end to end ({report.frames_collected} frames in "
+            f"{report.wall_s:.1f} s); per worker, rollout {report.rollout_s:.1f} s + writing {report.write_s:.1f} s "
+            f"= {steady:.1f} frames/s; peak memory per worker {report.worker_peak_rss_mb:.0f} MB"
+        )
+        if workers == 1:
+            one = rate
+            line += f"; overhead vs bare: end to end {bare / rate - 1:+.0%}, steady state {bare / steady - 1:+.0%}"
+        else:
+            line += f"; speed-up vs 1 worker: {rate / one:.2f}x"
+        print(line)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,131 @@
+"""Benchmark: MOSAIC training step (paper settings) and attention cost against full spatio-temporal attention.
+
+    python -m pipelines.bench.policy_train_step [--batch-size 30] [--steps 3] [--threads N]
+
+Prints: seconds per training step (forward + backward + Adam + EMA update; batch 30, 4 demo + 7 observation
+frames at 100x180, 2 attention layers, contrastive before and after attention), peak resident memory, and the
+time of the attention stack alone, MOSAIC pattern vs every token attending to every token of all 11 frames
+(T-OSIL style), measured in the same run on the same features.
+"""
+
+import argparse
+import resource
+import statistics
+import time
+
+import torch
+
+from lerobot.configs import FeatureType, PolicyFeature
+
+IMAGE_KEY = "observation.images.agentview"
+
+
+def paper_config(height: int, width: int, **overrides):
+    from mosaic_policy import MosaicConfig
+
+    return MosaicConfig(
+        device="cpu",
+        input_features={
+            IMAGE_KEY: PolicyFeature(FeatureType.VISUAL, (3, height, width)),
+            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
+        },
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
+        push_to_hub=False,
+        **overrides,
+    )
+
+
+def synthetic_batch(config, batch_size: int, height: int, width: int) -> dict:
+    t, d = config.train_obs_frames, config.n_demo_frames
+    return {
+        IMAGE_KEY: torch.rand(batch_size, t, 3, height, width),
+        "observation.state": torch.randn(batch_size, t, 10),
+        "action": torch.rand(batch_size, t, 7) * 2 - 1,
+        "action_is_pad": torch.zeros(batch_size, t, dtype=torch.bool),
+        "demo_frames": torch.rand(batch_size, d, 3, height, width),
+        "task": [f"variation {i % 4}" for i in range(batch_size)],
+    }
+
+
+def peak_rss_gib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
+def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> list[float]:
+    from mosaic_policy.modeling_mosaic import MosaicPolicy
+
+    config = paper_config(height, width)
+    policy = MosaicPolicy(config).train()
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr)
+    batch = synthetic_batch(config, batch_size, height, width)
+    times = []
+    for _ in range(steps + 1):  # the first step warms up oneDNN
+        start = time.perf_counter()
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        policy.update()
+        times.append(time.perf_counter() - start)
+    return times[1:]
+
+
+def time_attention(pattern: str, batch_size: int, feature_shape: tuple[int, int, int], repeats: int) -> float:
+    """Median seconds of forward + backward through the 2-layer attention stack on fixed features."""
+    from mosaic_policy.attention import NonLocalAttentionStack
+
+    c, h, w = feature_shape
+    torch.manual_seed(0)
+    stack = NonLocalAttentionStack(c, 2, 4, 16.0, 0.0, pattern)
+    demo = torch.randn(batch_size, c, 4, h, w, requires_grad=True)
+    obs = torch.randn(batch_size, c, 7, h, w, requires_grad=True)
+    times = []
+    for _ in range(repeats + 1):
+        start = time.perf_counter()
+        demo_out, obs_out, _ = stack(demo, obs)
+        (demo_out.sum() + obs_out.sum()).backward()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times[1:])
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batch-size", type=int, default=30)
+    parser.add_argument("--steps", type=int, default=3, help="timed steps after one warm-up step")
+    parser.add_argument("--height", type=int, default=100)
+    parser.add_argument("--width", type=int, default=180)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    parser.add_argument("--skip-train", action="store_true", help="only the attention comparison")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device for this run: cpu (cuda available: {device == 'cuda'})")
+
+    from mosaic_policy.resnet_trunk import ResNetTrunk
+
+    feature_shape = ResNetTrunk().feature_shape(args.height, args.width)
+    print(f"features per frame at {args.height}x{args.width}: {feature_shape}")
+
+    mosaic = time_attention("mosaic", args.batch_size, feature_shape, repeats=3)
+    full = time_attention("full", args.batch_size, feature_shape, repeats=3)
+    tokens = feature_shape[1] * feature_shape[2]
+    pairs_mosaic = (4 * tokens) ** 2 + 7 * tokens * (tokens + 4 * tokens)
+    pairs_full = (11 * tokens) ** 2
+    print(
+        f"attention stack fwd+bwd, batch {args.batch_size}: mosaic {mosaic * 1e3:.0f} ms, full spatio-temporal "
+        f"{full * 1e3:.0f} ms, ratio {mosaic / full:.2f} (query-key pairs ratio {pairs_mosaic / pairs_full:.2f})"
+    )
+
+    if not args.skip_train:
+        times = time_train_steps(args.batch_size, args.steps, args.height, args.width)
+        print(
+            f"train step (batch {args.batch_size}, 4+7 frames, {args.height}x{args.width}, contrastive both): "
+            f"median {statistics.median(times):.2f} s, min {min(times):.2f} s over {len(times)} steps "
+            f"-> {args.batch_size / statistics.median(times):.1f} samples/s"
+        )
+    print(f"peak resident memory: {peak_rss_gib():.2f} GiB")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,194 @@
+"""The shared building blocks, each alone: trunk, discretised logistic, attention, contrastive module."""
+
+import math
+
+import pytest
+import torch
+
+from mosaic_policy.attention import NonLocalAttentionStack, spatio_temporal_encoding
+from mosaic_policy.contrastive import (
+    TemporalContrastiveModule,
+    ema_momentum,
+    ema_update,
+    make_target,
+    positive_indices,
+)
+from mosaic_policy.discretized_logistic import DiscretizedLogisticMixture
+from mosaic_policy.resnet_trunk import ResNetTrunk
+
+
+def test_trunk_gives_256x7x12_features_at_100x180():
+    trunk = ResNetTrunk().eval()
+    with torch.no_grad():
+        features = trunk(torch.rand(1, 3, 100, 180))
+    assert features.shape == (1, 256, 7, 12)
+    assert features.dtype == torch.float32
+
+
+# -- discretised logistic ----------------------------------------------------------------------------------
+
+
+def _sigmoid(x):
+    return 1.0 / (1.0 + math.exp(-x))
+
+
+def _direct_bin_probability(x, weights, means, scales, num_bins, low=-1.0, high=1.0):
+    """P(bin of x) of a logistic mixture, written out from the definition with floats."""
+    width = (high - low) / (num_bins - 1)
+    k = round((x - low) / width)
+    centre = low + k * width
+    total = 0.0
+    for w, mu, s in zip(weights, means, scales, strict=True):
+        upper = 1.0 if k == num_bins - 1 else _sigmoid((centre + width / 2 - mu) / s)
+        lower = 0.0 if k == 0 else _sigmoid((centre - width / 2 - mu) / s)
+        total += w * (upper - lower)
+    return total
+
+
+def test_discretized_logistic_nll_matches_direct_computation():
+    logits = [0.3, -1.0, 0.7]
+    weights = [math.exp(v) / sum(math.exp(u) for u in logits) for u in logits for v in [u]]
+    means = [-0.5, 0.1, 0.8]
+    log_scales = [-2.0, -3.0, -1.5]
+    scales = [math.exp(v) for v in log_scales]
+    xs = [-1.0, -0.999, -0.52, 0.0, 0.1, 0.13, 0.79, 1.0, 0.4]
+    dist = DiscretizedLogisticMixture(
+        torch.tensor(logits, dtype=torch.float64).expand(len(xs), 3),
+        torch.tensor(means, dtype=torch.float64).expand(len(xs), 3),
+        torch.tensor(log_scales, dtype=torch.float64).expand(len(xs), 3),
+        num_bins=256,
+    )
+    got = dist.log_prob(torch.tensor(xs, dtype=torch.float64))
+    expected = torch.tensor([math.log(_direct_bin_probability(x, weights, means, scales, 256)) for x in xs], dtype=torch.float64)
+    torch.testing.assert_close(got, expected, rtol=1e-6, atol=1e-8)
+
+
+def test_discretized_logistic_bins_sum_to_one_and_samples_follow_the_mixture():
+    num_bins = 16
+    params = dict(
+        logit_probs=torch.tensor([[0.0, 1.0]]),
+        means=torch.tensor([[-0.6, 0.4]]),
+        log_scales=torch.tensor([[-1.5, -2.0]]),
+    )
+    dist = DiscretizedLogisticMixture(**params, num_bins=num_bins)
+    centres = torch.linspace(-1, 1, num_bins)
+    probs = torch.stack([dist.log_prob(c.view(1)).exp() for c in centres]).squeeze(-1)
+    assert probs.sum().item() == pytest.approx(1.0, abs=1e-5)
+
+    n = 40_000
+    many = DiscretizedLogisticMixture(*(v.expand(n, 2) for v in params.values()), num_bins=num_bins)
+    samples = many.sample(torch.Generator().manual_seed(0))
+    bins = torch.round((samples + 1) / (2 / (num_bins - 1))).long()
+    empirical = torch.bincount(bins, minlength=num_bins).float() / n
+    assert (empirical - probs).abs().sum().item() < 0.03  # total variation (x2) within sampling noise
+    assert torch.allclose(samples, many.snap(samples))  # samples are bin centres
+
+
+# -- attention ---------------------------------------------------------------------------------------------
+
+
+def _stack(pattern="mosaic"):
+    torch.manual_seed(0)
+    return NonLocalAttentionStack(channels=24, n_layers=2, n_heads=3, temperature=16.0, dropout=0.0, pattern=pattern).eval()
+
+
+def test_observation_frames_are_independent_of_how_many_are_given():
+    """7 training frames or 1 inference frame: the same output per frame (same encodings, no cross-frame attention)."""
+    stack = _stack()
+    demo = torch.randn(2, 24, 4, 3, 5) + spatio_temporal_encoding(24, [0, 1, 2, 3], 3, 5)
+    obs = torch.randn(2, 24, 7, 3, 5) + spatio_temporal_encoding(24, [4], 3, 5)
+    with torch.no_grad():
+        _, all_frames, _ = stack(demo, obs)
+        _, cache = stack.encode_demo(demo)
+        for t in (0, 3, 6):
+            one, _ = stack.attend_obs(obs[:, :, t : t + 1], cache)
+            torch.testing.assert_close(one[:, :, 0], all_frames[:, :, t], rtol=1e-5, atol=1e-5)
+
+
+def test_attention_weights_cover_own_and_demo_tokens():
+    stack = _stack()
+    demo, obs = torch.randn(1, 24, 4, 3, 5), torch.randn(1, 24, 2, 3, 5)
+    with torch.no_grad():
+        _, cache = stack.encode_demo(demo)
+        _, weights = stack.attend_obs(obs, cache, return_weights=True)
+    assert len(weights) == 2
+    assert weights[0].shape == (1, 3, 2, 15, 15 + 4 * 15)  # (B, heads, T, queries, own + demo tokens)
+    torch.testing.assert_close(weights[0].sum(-1), torch.ones(1, 3, 2, 15))
+
+
+def test_demo_stream_is_updated_by_every_layer():
+    stack = _stack()
+    demo = torch.randn(1, 24, 4, 3, 5)
+    with torch.no_grad():
+        out, cache = stack.encode_demo(demo)
+    assert not torch.allclose(out, demo)
+    assert not torch.allclose(cache[0][0], cache[1][0])  # layer 2's keys come from layer 1's demo output
+
+
+def test_full_pattern_runs():
+    demo_out, obs_out, _ = _stack("full")(torch.randn(1, 24, 4, 3, 5), torch.randn(1, 24, 3, 3, 5))
+    assert demo_out.shape == (1, 24, 4, 3, 5) and obs_out.shape == (1, 24, 3, 3, 5)
+
+
+# -- contrastive -------------------------------------------------------------------------------------------
+
+
+def test_positive_indices_modes():
+    valid = torch.ones(2, 5, dtype=torch.bool)
+    same = positive_indices(2, 5, "same", 0, valid)
+    assert same.tolist() == list(range(10))
+    fixed = positive_indices(2, 5, "fixed", 2, valid).reshape(2, 5)
+    assert fixed[0].tolist() == [2, 3, 4, 1, 2]
+    window = positive_indices(2, 5, "window", 1, valid, torch.Generator().manual_seed(0)).reshape(2, 5)
+    offsets = window - torch.arange(10).reshape(2, 5)
+    assert offsets.abs().max() <= 1 and (window[1] >= 5).all()
+    valid[0, 3:] = False
+    window = positive_indices(2, 5, "window", 4, valid, torch.Generator().manual_seed(1)).reshape(2, 5)
+    assert (window[0, :3] < 3).all()  # padded frames are never positives of real ones
+
+
+@pytest.mark.parametrize("objective", ["infonce", "byol"])
+def test_contrastive_loss_is_lower_for_true_positives(objective):
+    """After a few steps on a fixed batch of two noisy views, true pairs score far better than shuffled ones."""
+    torch.manual_seed(0)
+    module = TemporalContrastiveModule(feature_dim=32, dim=16, hidden_dim=64, objective=objective, temperature=0.1)
+    online = torch.randn(24, 32)
+    target = online + 0.05 * torch.randn(24, 32)
+    valid = torch.ones(24, dtype=torch.bool)
+    positives, shuffled = torch.arange(24), torch.roll(torch.arange(24), 5)
+    optimizer = torch.optim.Adam(module.trainable_parameters(), lr=1e-2)
+    for _ in range(60):
+        loss = module.loss(online, module.keys(target), positives, valid).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        module.update_target(0.99)
+    module.eval()
+    with torch.no_grad():
+        keys = module.keys(target)
+        true_loss = module.loss(online, keys, positives, valid).mean()
+        shuffled_loss = module.loss(online, keys, shuffled, valid).mean()
+    assert true_loss < 0.5 * shuffled_loss
+
+
+def test_bilinear_similarity_is_a_full_matrix():
+    module = TemporalContrastiveModule(8, 4, 16, "infonce", 0.1)
+    module.train()
+    loss = module.loss(torch.randn(6, 8), module.keys(torch.randn(6, 8)), torch.arange(6), torch.ones(6, dtype=torch.bool))
+    loss.mean().backward()
+    off_diagonal = module.bilinear.grad - torch.diag(torch.diag(module.bilinear.grad))
+    assert off_diagonal.abs().sum() > 0
+
+
+def test_ema_schedule_and_update():
+    assert ema_momentum(0, 100, 0.996) == pytest.approx(0.996)
+    assert ema_momentum(50, 100, 0.996) == pytest.approx(0.998)
+    assert ema_momentum(100, 100, 0.996) == pytest.approx(1.0)
+    online = torch.nn.Linear(3, 3)
+    target = make_target(online)
+    with torch.no_grad():
+        online.weight.add_(1.0)
+    before = target.weight.clone()
+    ema_update(target, online, 0.9)
+    torch.testing.assert_close(target.weight, 0.9 * before + 0.1 * online.weight)
+    assert not target.weight.requires_grad

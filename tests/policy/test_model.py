@@ -1,0 +1,172 @@
+"""The MOSAIC policy end to end on tensors: shapes, gradients, EMA target, inference with a cached demo, errors."""
+
+import pytest
+import torch
+from conftest import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
+
+from mosaic_policy import MosaicConfig
+from mosaic_policy.modeling_mosaic import MosaicPolicy
+
+
+@pytest.fixture(scope="module")
+def policy():
+    torch.manual_seed(0)
+    return MosaicPolicy(small_config())
+
+
+def test_paper_defaults():
+    config = MosaicConfig()
+    assert (config.n_demo_frames, config.train_obs_frames, config.eval_obs_frames) == (4, 7, 1)
+    assert (config.n_attention_layers, config.attention_temperature, config.action_bins) == (2, 16.0, 256)
+    assert config.contrastive == "both" and config.optimizer_lr == 5e-4
+    assert config.bc_loss_weight == config.inverse_loss_weight == config.contrastive_loss_weight == 1.0
+    assert config.observation_delta_indices == list(range(7)) == config.action_delta_indices
+
+
+@pytest.mark.parametrize(
+    "field, value", [("contrastive", "sometimes"), ("contrastive_positive", "nearby"), ("n_demo_frames", 1)]
+)
+def test_config_rejects_bad_values_naming_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        MosaicConfig(**{field: value})
+
+
+def test_shapes_and_dtypes_through_the_model(policy):
+    batch = random_batch(policy.config)
+    encoded = policy.model.encode(policy.model.trunk, policy.model.attention, batch["demo_frames"], batch[IMAGE_KEY])
+    c, h, w = policy.model.feature_shape
+    assert (c, h, w) == (256, 2, 4)
+    assert encoded["demo_post"].shape == (4, c, 4, h, w)
+    assert encoded["obs_post"].shape == (4, c, 3, h, w)
+    embeddings = policy.model.frame_embeddings(encoded["obs_post"])
+    assert embeddings.shape == (4, 3, policy.config.embed_dim)
+    dist = policy.model.action_distribution(embeddings, batch["observation.state"])
+    assert dist.means.shape == (4, 3, 7, policy.config.n_mixtures)
+    policy.train()
+    loss, info = policy.forward(batch)
+    assert loss.dim() == 0 and loss.dtype == torch.float32 and torch.isfinite(loss)
+    assert {"bc_loss", "inverse_loss", "contrastive_loss"} <= set(info)
+    per_sample, _ = policy.forward(batch, reduction="none")
+    assert per_sample.shape == (4,)
+
+
+def test_gradients_reach_every_trainable_parameter_and_none_reach_the_target(policy):
+    policy.train()
+    policy.zero_grad(set_to_none=True)
+    loss, _ = policy.forward(random_batch(policy.config, seed=1))
+    loss.backward()
+    trainable = {n for n, p in policy.named_parameters() if p.requires_grad}
+    missing = [n for n, p in policy.named_parameters() if p.requires_grad and (p.grad is None or not p.grad.abs().sum() > 0)]
+    assert not missing
+    frozen = [n for n, p in policy.named_parameters() if not p.requires_grad]
+    assert frozen and all(n.startswith(("target_", "model.contrastive_before.target_projector", "model.contrastive_after.target_projector")) for n in frozen)
+    assert all(p.grad is None for n, p in policy.named_parameters() if n in frozen)
+    assert {id(p) for p in policy.get_optim_params()} == {id(p) for n, p in policy.named_parameters() if n in trainable}
+
+
+def test_ema_target_moves_after_update(policy):
+    policy.train()
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
+    target_before = {n: p.clone() for n, p in policy.named_parameters() if not p.requires_grad}
+    loss, _ = policy.forward(random_batch(policy.config, seed=2))
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    assert all(torch.equal(target_before[n], p) for n, p in policy.named_parameters() if n in target_before)
+    step = int(policy.ema_step)
+    policy.update()
+    assert int(policy.ema_step) == step + 1
+    moved = [n for n, p in policy.named_parameters() if n in target_before and not torch.equal(target_before[n], p)]
+    assert any(n.startswith("target_trunk") for n in moved)
+    assert any(n.startswith("target_attention") for n in moved)
+    assert any("target_projector" in n for n in moved)  # the original code never updated it
+
+
+def test_select_action_uses_the_cached_demo_and_matches_the_training_path(policy):
+    policy.eval()
+    policy.reset()
+    with pytest.raises(RuntimeError, match="set_demo"):
+        policy.select_action({IMAGE_KEY: torch.rand(1, 3, HEIGHT, WIDTH), "observation.state": torch.randn(1, 10)})
+    video = (torch.rand(30, HEIGHT, WIDTH, 3) * 255).to(torch.uint8)  # a whole demo video, channels last
+    policy.set_demo(video)
+    assert policy.has_demo
+    frames = torch.rand(2, 3, 3, HEIGHT, WIDTH)
+    state = torch.randn(2, 3, 10)
+    with torch.no_grad():
+        from mosaic_policy.paired_sampling import demo_frame_indices
+
+        demo_frames = (video[demo_frame_indices(30, 4)].permute(0, 3, 1, 2).float() / 255).expand(2, -1, -1, -1, -1)
+        encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo_frames, frames)
+        expected = policy.model.action_distribution(policy.model.frame_embeddings(encoded["obs_post"]), state).mode()
+    for t in range(3):
+        action = policy.select_action({IMAGE_KEY: frames[:, t], "observation.state": state[:, t]})
+        assert action.shape == (2, 7) and action.dtype == torch.float32
+        torch.testing.assert_close(action, expected[:, t], atol=2 / 255, rtol=0)
+    action, weights = policy.predict_with_attention({IMAGE_KEY: frames[:, 0], "observation.state": state[:, 0]})
+    assert len(weights) == policy.config.n_attention_layers
+    assert weights[0].shape == (2, policy.config.n_attention_heads, 1, 8, 8 + 4 * 8)
+    assert policy.predict_action_chunk({IMAGE_KEY: frames[:, 0], "observation.state": state[:, 0]}).shape == (2, 1, 7)
+    policy.reset()
+    assert not policy.has_demo
+
+
+def test_wrong_image_size_is_a_clear_error(policy):
+    policy.train()
+    batch = random_batch(policy.config, height=40, width=56)
+    with pytest.raises(ValueError, match=r"built for \(3, 32, 56\)"):
+        policy.forward(batch)
+    policy.eval()
+    with pytest.raises(ValueError, match="resize"):
+        policy.set_demo(torch.rand(4, 3, 100, 180))
+
+
+def test_save_and_load_round_trip_exactly(policy, tmp_path):
+    policy.save_pretrained(tmp_path)
+    loaded = MosaicPolicy.from_pretrained(tmp_path)
+    original, reloaded = policy.state_dict(), loaded.state_dict()
+    assert original.keys() == reloaded.keys()
+    assert all(torch.equal(original[k], reloaded[k]) for k in original)
+    assert loaded.config.n_attention_heads == policy.config.n_attention_heads
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {"contrastive": "off"},
+        {"contrastive": "before", "contrastive_objective": "byol"},
+        {"contrastive": "after", "contrastive_positive": "fixed", "positive_window": 1},
+        {"contrastive_positive": "same", "n_attention_layers": 1, "n_demo_frames": 3},
+        {"attention_pattern": "full", "use_state": False},
+    ],
+)
+def test_ablations_train(overrides):
+    policy = MosaicPolicy(small_config(**overrides)).train()
+    batch = random_batch(policy.config, batch_size=2)
+    loss, info = policy.forward(batch)
+    loss.backward()
+    policy.update()
+    assert torch.isfinite(loss)
+    assert ("contrastive_loss" in info) == (overrides.get("contrastive", "both") != "off")
+
+
+def test_loss_is_averaged_per_variation_then_per_task():
+    from mosaic_data.tasks import TASKS
+
+    door = [v.description for v in TASKS["door"].variations]
+    drawer = [v.description for v in TASKS["drawer"].variations]
+    policy = MosaicPolicy(small_config(contrastive="off", augment=False))
+    batch = {"task": [door[0], door[0], door[1], drawer[0]]}
+    weights = policy._sample_weights(batch, 4, "cpu")
+    # two tasks (1/2 each); door has two variations (1/4 each); door[0] has two samples (1/8 each)
+    torch.testing.assert_close(weights, torch.tensor([1 / 8, 1 / 8, 1 / 4, 1 / 2]))
+
+
+def test_loss_is_averaged_per_variation():
+    policy = MosaicPolicy(small_config(contrastive="off", augment=False)).train()
+    batch = random_batch(policy.config, batch_size=4)
+    batch["task"] = ["a", "a", "a", "b"]
+    per_sample, _ = policy.forward(batch, reduction="none")
+    weights = policy._sample_weights(batch, 4, "cpu")
+    torch.testing.assert_close(weights, torch.tensor([1 / 6, 1 / 6, 1 / 6, 1 / 2]))
+    loss, _ = policy.forward(batch)
+    torch.testing.assert_close(loss, per_sample.mean(), rtol=1e-5, atol=1e-5)

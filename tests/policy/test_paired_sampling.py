@@ -1,0 +1,83 @@
+"""Pairing agent samples with demonstrator frames, read back from real LeRobot datasets."""
+
+import numpy as np
+import pytest
+import torch
+from conftest import IMAGE_KEY, read_variation_rank, variation_description, write_dataset
+
+from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
+from mosaic_policy.modeling_mosaic import MosaicPolicy
+from mosaic_policy.paired_sampling import DemoDatasetError, PairedDemoSampler, demo_frame_indices
+
+
+def test_demo_frames_are_first_last_and_one_per_middle_segment():
+    assert demo_frame_indices(30, 4) == [0, 8, 22, 29]
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        first, a, b, last = demo_frame_indices(30, 4, rng)
+        assert first == 0 and last == 29 and 1 <= a <= 14 and 15 <= b <= 28
+    assert len(demo_frame_indices(2, 4)) == 4  # short demos repeat frames
+
+
+@pytest.mark.parametrize("threads", [0, 2])
+def test_each_sample_gets_a_demo_of_its_variation_from_another_instance(door_datasets, threads):
+    agent_root, demo_root = door_datasets
+    agent_meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    sampler = PairedDemoSampler(
+        "mosaic/door_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent_meta, threads=threads, seed=threads
+    )
+    episode_tasks = [t[0] for t in agent_meta.episodes["tasks"]]
+    agent_episodes = [0, 1, 2, 3, 4, 5, 6, 7, 0, 5]
+    tasks = [episode_tasks[e] for e in agent_episodes]
+    for _ in range(3):
+        frames = sampler.sample(tasks, agent_episodes)
+        assert frames.shape == (10, 4, 3, 32, 56) and frames.dtype == torch.uint8
+        for i, episode in enumerate(agent_episodes):
+            variation, rank = read_variation_rank(frames[i, 0])
+            assert variation_description(variation) == tasks[i]
+            assert rank != sampler.agent_rank[episode]  # another instance of the variation
+            # the four frames are first, two middle ones, last: the moving square moves forward
+            assert all(read_variation_rank(f) == (variation, rank) for f in frames[i])
+    sampler.close()
+
+
+def test_policy_built_for_training_pairs_batches_from_lerobot(door_datasets):
+    agent_root, demo_root = door_datasets
+    from conftest import small_config
+
+    dataset = LeRobotDataset(
+        "mosaic/door_panda", root=agent_root, delta_timestamps={IMAGE_KEY: [0, 0.05, 0.1], "action": [0, 0.05, 0.1], "observation.state": [0, 0.05, 0.1]}
+    )
+    config = small_config(demo_repo_id="mosaic/door_sawyer", demo_root=str(demo_root), demo_loader_threads=1)
+    policy = MosaicPolicy(config, dataset_meta=dataset.meta).train()
+    batch = next(iter(torch.utils.data.DataLoader(dataset, batch_size=4, shuffle=True)))
+    batch[IMAGE_KEY] = batch[IMAGE_KEY].float()
+    loss, info = policy.forward(batch)
+    assert torch.isfinite(loss) and "demo_wait_s" in info
+
+
+def test_missing_demo_dataset_is_a_clear_error(door_datasets, tmp_path):
+    agent_root, _ = door_datasets
+    meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    with pytest.raises(DemoDatasetError, match="not found"):
+        PairedDemoSampler("mosaic/door_sawyer", tmp_path / "nowhere", IMAGE_KEY, 4, agent_meta=meta)
+    from conftest import small_config
+
+    with pytest.raises(ValueError, match="demo_repo_id"):
+        MosaicPolicy(small_config(), dataset_meta=meta)
+
+
+def test_demo_dataset_lacking_a_variation_is_a_clear_error(door_datasets, tmp_path):
+    agent_root, _ = door_datasets
+    partial = write_dataset(tmp_path / "partial", "mosaic/door_sawyer", [0, 1, 2], episodes_per_variation=1, length=4)
+    meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    with pytest.raises(DemoDatasetError, match=r"no episode of 1 variation\(s\).*open door 1 right"):
+        PairedDemoSampler("mosaic/door_sawyer", partial, IMAGE_KEY, 4, agent_meta=meta)
+
+
+def test_demo_dataset_of_another_image_size_is_a_clear_error(door_datasets, tmp_path):
+    agent_root, _ = door_datasets
+    other = write_dataset(tmp_path / "big", "mosaic/door_sawyer", [0, 1, 2, 3], 1, 4, height=40, width=56)
+    meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    with pytest.raises(DemoDatasetError, match="same image size"):
+        PairedDemoSampler("mosaic/door_sawyer", other, IMAGE_KEY, 4, agent_meta=meta)
