@@ -106,14 +106,21 @@ class NonLocalAttentionLayer(nn.Module):
     def forward_obs(
         self, obs: Tensor, demo_k: Tensor, demo_v: Tensor, return_weights: bool = False
     ) -> tuple[Tensor, Tensor | None]:
-        """Each observation frame attends to [its own tokens, all demo tokens]; weights (B, heads, T, hw, hw + D*hw)."""
+        """Each observation frame attends to [its own tokens, all demo tokens]; weights (B, heads, T, hw, hw + D*hw).
+
+        One softmax over both key sets, computed in two blocks so the demo keys are not copied per frame.
+        """
         x = obs.movedim(1, -1)
         q, k, v = self._qkv(x)
-        t = q.shape[2]
-        keys = torch.cat([k, demo_k.unsqueeze(2).expand(-1, -1, t, -1, -1)], dim=3)
-        values = torch.cat([v, demo_v.unsqueeze(2).expand(-1, -1, t, -1, -1)], dim=3)
-        attended, weights = self._attend(q, keys, values, return_weights)
-        return self._residual(x, self._merge(attended, x)).movedim(-1, 1), weights
+        b, n_h, t, hw, dh = q.shape
+        q = q / self.temperature
+        own_scores = q @ k.transpose(-1, -2)  # (B, heads, T, hw, hw)
+        demo_scores = (q.flatten(2, 3) @ demo_k.transpose(-1, -2)).reshape(b, n_h, t, hw, -1)  # (..., D*hw)
+        weights = torch.softmax(torch.cat([own_scores, demo_scores], dim=-1), dim=-1)
+        own_w, demo_w = weights.split([hw, demo_scores.shape[-1]], dim=-1)
+        attended = own_w @ v + (demo_w.flatten(2, 3) @ demo_v).reshape(b, n_h, t, hw, dh)
+        out = self._residual(x, self._merge(attended, x)).movedim(-1, 1)
+        return out, (weights if return_weights else None)
 
     def forward_full(self, demo: Tensor, obs: Tensor) -> tuple[Tensor, Tensor]:
         """Baseline: every token of every frame attends to every token (T-OSIL style)."""

@@ -1,11 +1,29 @@
 #!/usr/bin/env bash
-# The main job on a small default: list the suite, roll the scripted experts of a task out for both robots,
-# and write what they did to a video and a rerun recording under outputs/.
+# The main job on a small default (task `door`, or the first argument):
+#   1. the task table and the scripted experts of both robots -> outputs/<task>_experts.mp4
+#   2. a small cross-embodiment LeRobot dataset pair (2 episodes per variation per robot) -> outputs/datasets/mosaic/<task>_{panda,sawyer}
+#   3. validation of both datasets, and a rerun recording of an agent episode beside a demonstrator episode
+#   4. a few training steps of MOSAIC with lerobot-train on that pair -> outputs/train/<task>_mosaic
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
 task="${1:-door}"
+datasets="outputs/datasets"
 mkdir -p outputs
-mosaic-data tasks
+
+mosaic-data tasks --task "$task"
 mosaic-data experts --task "$task" --robot both --episodes 2 --video "outputs/${task}_experts.mp4"
-mosaic-data experts --task "$task" --robot panda --episodes 1 --rerun "outputs/${task}_experts.rrd"
-echo "done: outputs/${task}_experts.mp4 and outputs/${task}_experts.rrd (view with: .venv/bin/rerun outputs/${task}_experts.rrd)"
+
+mosaic-data collect --task "$task" --robot both --episodes 2 --output-dir "$datasets"
+mosaic-data validate "mosaic/${task}_panda" --output-dir "$datasets"
+mosaic-data validate "mosaic/${task}_sawyer" --output-dir "$datasets"
+mosaic-data view "mosaic/${task}_panda" --episode 0 --pair --output-dir "$datasets" --save "outputs/${task}_pair.rrd"
+
+rm -rf "outputs/train/${task}_mosaic"
+lerobot-train --policy.type=mosaic \
+    --dataset.repo_id="mosaic/${task}_panda" --dataset.root="$datasets/mosaic/${task}_panda" \
+    --policy.demo_repo_id="mosaic/${task}_sawyer" --policy.demo_root="$datasets/mosaic/${task}_sawyer" \
+    --policy.push_to_hub=false --policy.device=cpu --policy.ema_total_steps=4 \
+    --steps=4 --batch_size=2 --num_workers=0 --save_freq=4 --log_freq=1 \
+    --output_dir="outputs/train/${task}_mosaic"
+echo "done: outputs/${task}_experts.mp4, datasets under $datasets, outputs/${task}_pair.rrd" \
+     "(view with: .venv/bin/rerun outputs/${task}_pair.rrd), checkpoint outputs/train/${task}_mosaic/checkpoints/last"

@@ -33,10 +33,12 @@ if [ ! -x .venv/bin/python ]; then
 fi
 
 stamp=.venv/.mosaic-installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -nt "$stamp" ]; then
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -nt "$stamp" ] \
+    || [ plugins/lerobot_policy_mosaic/pyproject.toml -nt "$stamp" ]; then
     echo "[setup] installing Python packages (first time: about 2 minutes, 7 GB)"
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[test]"
+    # The plugin distribution is what LeRobot's discovery imports for --policy.type=mosaic.
+    .venv/bin/python -m pip install -q -e ".[test]" -e plugins/lerobot_policy_mosaic
     touch "$stamp"
 fi
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 from mosaic_data.experts.base import Phase, ScriptedExpert
 from mosaic_data.experts.door import DoorExpert
 from mosaic_data.experts.drawer import DrawerExpert
+from mosaic_data.experts.nut_assembly import NutAssemblyExpert
+from mosaic_data.experts.pick_place import PickPlaceExpert
 from mosaic_data.experts.press_button import PressButtonExpert
 from mosaic_data.experts.stack_block import StackBlockExpert
 from mosaic_data.tasks import MosaicTaskEnv
@@ -14,6 +16,8 @@ EXPERTS: dict[str, type[ScriptedExpert]] = {
     "drawer": DrawerExpert,
     "press_button": PressButtonExpert,
     "stack_block": StackBlockExpert,
+    "nut_assembly": NutAssemblyExpert,
+    "pick_place": PickPlaceExpert,
 }
 
 

@@ -13,6 +13,8 @@ Targets follow the handle's current position, so the hand moves with the drawer 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from mosaic_data.experts.base import GRIPPER_CLOSED, Phase, ScriptedExpert, top_down
@@ -82,7 +84,7 @@ class DrawerExpert(ScriptedExpert):
 
         above = engage_point() + lift
 
-        def near(target) -> callable:
+        def near(target: Callable[[], np.ndarray]) -> Callable[[], bool]:
             # Along the bar (y) the hand has room, so a larger error there is fine (the Sawyer lags on its right).
             def check() -> bool:
                 error = np.abs(env.eef_pos - target())
@@ -104,9 +106,17 @@ class DrawerExpert(ScriptedExpert):
                 max_step_m=0.005,
             ),
             Phase(
-                "descend", engage_point, GRIPPER_CLOSED, tolerance_m=0.01, done=near(engage_point), max_steps=40, max_step_m=0.01
+                "descend",
+                engage_point,
+                GRIPPER_CLOSED,
+                tolerance_m=0.01,
+                done=near(engage_point),
+                max_steps=40,
+                max_step_m=0.01,
             ),
-            Phase("slide", slide_target, GRIPPER_CLOSED, tolerance_m=0.0, done=slid_enough, max_steps=80, max_step_m=0.01),
+            Phase(
+                "slide", slide_target, GRIPPER_CLOSED, tolerance_m=0.0, done=slid_enough, max_steps=80, max_step_m=0.01
+            ),
             Phase(
                 "retreat",
                 lambda: self._retreat_target(-direction * 0.01 + lift),
@@ -117,7 +127,7 @@ class DrawerExpert(ScriptedExpert):
         ]
 
     def _retreat_target(self, move: np.ndarray) -> np.ndarray:
-        """Up and a little back from where the hand let go (fixed, so that it does not chase the drawer)."""
+        """Up and a little off the bar from where the hand let go (fixed, so that it does not chase the drawer)."""
         if self._retreat_from is None:
             self._retreat_from = self.env.eef_pos
         return self._retreat_from + move

@@ -15,15 +15,29 @@ from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, Script
 from mosaic_data.tasks.nut_assembly import NUT_HALF_THICKNESS_M, PEG_HEIGHT_M, NutAssembly
 
 APPROACH_HEIGHT_M = 0.10
-"""Above the handle before descending to it."""
-GRASP_BELOW_HANDLE_M = 0.002
-"""The grip site goes this far below the handle's centre, so the finger pads cover it."""
+"""Above the handle, where the fast approach ends."""
+HOVER_HEIGHT_M = 0.04
+"""Above the handle, where the hand settles before the slow descent."""
+GRASP_ABOVE_HANDLE_M = 0.006
+"""The grip site stays this far above the handle's centre: the fingertips reach about 1.5 cm below the site, and
+fingertips dragging on the table would not close."""
 CARRY_CLEARANCE_M = 0.05
 """Height of the nut's bottom above the peg's top while it is carried."""
 THREADED_DEPTH_M = 0.06
 """How far below the peg's top the nut's bottom is lowered before the fingers open."""
+SLOW_DOWN_M = 0.08
+CARRY_STEP_M = 0.006
+"""The carry slows down to this (per step) for its last ``SLOW_DOWN_M``: stopping from full speed, the arm
+(mostly the Panda) overshoots and swings around the peg for a second."""
+NEAR_M = 0.015
+"""The fast carry ends with the nut's centre this close to the peg's axis (xy); a slow centring follows."""
 CENTRED_M = 0.006
-"""The nut's centre within this of the peg's axis (xy) before lowering it."""
+"""The nut's centre within this of the peg's axis (xy) before and while lowering it."""
+STILL_M_PER_S = 0.03
+"""The nut barely moving (it swings a little on the fast carry) before it is lowered."""
+LIFTED_M = 0.02
+"""While carried, the nut's bottom is at least this above the table and touches the fingers; else start over."""
+MAX_RETRIES = 2
 
 
 def _fold_yaw(yaw: float) -> float:
@@ -34,6 +48,22 @@ def _fold_yaw(yaw: float) -> float:
 class NutAssemblyExpert(ScriptedExpert):
     env: NutAssembly
 
+    def act(self, obs=None, env=None) -> np.ndarray:
+        if self.phase_name in ("carry", "come_over", "centre", "lower") and not self._holding() and self.retries < MAX_RETRIES:
+            self._start_over()
+        return super().act(obs, env)
+
+    def _holding(self) -> bool:
+        nut = self.variation.params["nut"]
+        lifted = self.env.nut_position(nut)[2] - NUT_HALF_THICKNESS_M - self.env.table_offset[2]
+        return bool(lifted > LIFTED_M and not self.env.is_released(nut))
+
+    def _start_over(self) -> None:
+        """The nut slipped out of the fingers: grasp it again where it lies (keeping the learned offset)."""
+        retries, offset = self.retries, self._offset
+        self.reset()
+        self.retries, self._offset = retries + 1, offset
+
     def phases(self) -> list[Phase]:
         env = self.env
         nut, peg = self.variation.params["nut"], self.variation.params["peg"]
@@ -41,9 +71,27 @@ class NutAssemblyExpert(ScriptedExpert):
         # across the handle when yaw is the nut's yaw (mod pi).
         nut_yaw = env.nut_rotation(nut).as_euler("xyz")[2]
         self.orientation = top_down(_fold_yaw(nut_yaw))
-        handle = env.nut_handle_position(nut)
-        grasp = handle - np.array([0.0, 0.0, GRASP_BELOW_HANDLE_M])
-        above = grasp + np.array([0.0, 0.0, APPROACH_HEIGHT_M])
+        grasp_z = env.nut_handle_position(nut)[2] + GRASP_ABOVE_HANDLE_M
+
+        def grasp() -> np.ndarray:
+            """Over the handle's current centre (the fingers may nudge the nut), at the grasp height."""
+            return np.append(env.nut_handle_position(nut)[:2], grasp_z)
+
+        def over_handle(height: float):
+            return lambda: grasp() + np.array([0.0, 0.0, height])
+
+        frozen: dict[str, np.ndarray] = {}
+
+        def hold_where_started(key: str, target=None):
+            """The grip site's position when the phase started (or ``target()`` then), held for the whole phase."""
+
+            def held() -> np.ndarray:
+                if key not in frozen:
+                    frozen[key] = env.eef_pos if target is None else target()
+                return frozen[key]
+
+            return held
+
         axis = env.peg_position(peg)
         peg_top = axis[2] + PEG_HEIGHT_M
         carry_z = peg_top + CARRY_CLEARANCE_M + NUT_HALF_THICKNESS_M  # nut centre height while carried
@@ -53,32 +101,46 @@ class NutAssemblyExpert(ScriptedExpert):
             """Where the grip site goes so that the nut's centre reaches ``nut_target`` (its offset as it hangs now)."""
             return env.eef_pos + (nut_target - env.nut_position(nut))
 
+        grasped_at = hold_where_started("close", grasp)
+
         def lifted() -> np.ndarray:
-            target = env.eef_pos.copy()
-            target[2] += carry_z - env.nut_position(nut)[2]
-            return np.array([grasp[0], grasp[1], target[2]])
+            """Straight up from the grasp until the nut's centre is at the carrying height."""
+            return np.array([*grasped_at()[:2], env.eef_pos[2] + carry_z - env.nut_position(nut)[2]])
 
         def over_peg() -> np.ndarray:
             return hand_for_nut_at(np.array([axis[0], axis[1], carry_z]))
 
+        def off_axis() -> float:
+            return float(np.linalg.norm(env.nut_position(nut)[:2] - axis[:2]))
+
+        def near(distance: float):
+            return lambda: off_axis() < distance
+
         def centred() -> bool:
-            return bool(np.linalg.norm(env.nut_position(nut)[:2] - axis[:2]) < CENTRED_M)
+            return off_axis() < CENTRED_M and np.linalg.norm(env.nut_velocity(nut)) < STILL_M_PER_S
 
         def down_peg() -> np.ndarray:
-            return hand_for_nut_at(np.array([axis[0], axis[1], release_z]))
+            # Go down only while the hole is over the peg; otherwise hold the height and re-centre.
+            z = release_z if off_axis() < CENTRED_M + 0.002 else env.nut_position(nut)[2]
+            return hand_for_nut_at(np.array([axis[0], axis[1], z]))
 
         def threaded() -> bool:
             return bool(env.nut_position(nut)[2] < release_z + 0.005)
 
         retreat = np.array([axis[0], axis[1], peg_top + 0.08])
         return [
-            Phase("approach", lambda: above, GRIPPER_OPEN, tolerance_m=0.02, max_steps=60),
-            Phase("align", lambda: above, GRIPPER_OPEN, tolerance_m=0.008, min_steps=5, max_steps=25, max_step_m=0.005),
-            Phase("descend", lambda: grasp, GRIPPER_OPEN, tolerance_m=0.008, max_steps=40, max_step_m=0.01),
-            Phase("close", lambda: grasp, GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
-            Phase("lift", lifted, GRIPPER_CLOSED, tolerance_m=0.015, max_steps=40, max_step_m=0.012),
-            Phase("carry", over_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=centred, min_steps=5, max_steps=70),
-            Phase("lower", down_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=threaded, max_steps=40, max_step_m=0.008),
-            Phase("release", down_peg, GRIPPER_OPEN, tolerance_m=0.0, min_steps=8, max_steps=8),
+            Phase("approach", over_handle(APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.02, max_steps=60),
+            # Settle close above the handle, then go down slowly: a fast descent leaves the arm overshooting
+            # downwards, and fingertips dragging on the table do not close.
+            Phase("align", over_handle(HOVER_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.005, min_steps=3, max_steps=30, max_step_m=0.006),
+            Phase("descend", grasp, GRIPPER_OPEN, tolerance_m=0.005, max_steps=30, max_step_m=0.005),
+            Phase("settle", grasp, GRIPPER_OPEN, tolerance_m=0.004, min_steps=2, max_steps=6, max_step_m=0.003),
+            Phase("close", grasped_at, GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
+            Phase("lift", lifted, GRIPPER_CLOSED, tolerance_m=0.015, max_steps=40),
+            Phase("carry", over_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=near(SLOW_DOWN_M), max_steps=60),
+            Phase("come_over", over_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=near(NEAR_M), max_steps=30, max_step_m=CARRY_STEP_M),
+            Phase("centre", over_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=centred, min_steps=3, max_steps=40, max_step_m=0.004),
+            Phase("lower", down_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=threaded, max_steps=50, max_step_m=0.008),
+            Phase("release", hold_where_started("release"), GRIPPER_OPEN, tolerance_m=0.0, min_steps=8, max_steps=8),
             Phase("retreat", lambda: retreat, GRIPPER_OPEN, tolerance_m=0.02, max_steps=30),
         ]

@@ -7,8 +7,9 @@ for the cereal box, 5 cm for the round can; the Sawyer's fingers open to 6 cm), 
 the robot: the hands, long along their closing direction, then reach in between the items. Of the two hand
 yaws that close along that axis, the expert takes the one near -90 degrees, where the Sawyer tracks best.
 
-The hand first settles a few centimetres above the item (the Sawyer's tracking error is integrated out
-there), then goes straight down following the item's current position. Carry and place targets are read from
+The hand turns on the spot first (turning while reaching over the items flips the arms' wrists), then
+settles a few centimetres above the item until it is at rest (the Sawyer's tracking error is integrated out
+there), then goes straight down to the grasp point read at that moment. Carry and place targets are read from
 the item's actual pose in the hand, so an item that slipped in the fingers still lands inside the bin. If the
 item is not in the hand after the lift, the expert starts over, at most ``MAX_RETRIES`` times.
 """
@@ -36,6 +37,9 @@ LIFTED_M = 0.03
 """The item counts as in the hand when its bottom is this far above the table after the lift."""
 MAX_RETRIES = 2
 TURNED_RAD = 0.25
+SETTLED_M = 0.004
+SETTLED_SPEED_M = 0.002
+"""Largest move of the grip site in one control step for the hand to count as at rest."""
 
 
 HAND_YAW_CENTRE_RAD = {"panda": -np.pi / 2, "sawyer": -np.pi / 2}
@@ -115,6 +119,20 @@ class PickPlaceExpert(ScriptedExpert):
             return target
 
         lift_dz = table_z + CARRY_CLEARANCE_M - (start[2] + low[2])
+
+        def hover() -> np.ndarray:
+            return grasp_point() + up * HOVER_HEIGHT_M
+
+        last_position: list[np.ndarray] = []
+
+        def settled() -> bool:
+            """Over the item within ``SETTLED_M`` and at rest: the Sawyer sways by centimetres after a move."""
+            position = env.eef_pos
+            still = bool(last_position) and np.linalg.norm(position - last_position[0]) < SETTLED_SPEED_M
+            last_position[:] = [position]
+            error = position - hover()
+            return still and np.linalg.norm(error[:2]) < SETTLED_M and abs(error[2]) < 0.01
+
         def turned() -> bool:
             return bool((env.eef_rotation.inv() * self.orientation).magnitude() < TURNED_RAD)
 
@@ -124,8 +142,8 @@ class PickPlaceExpert(ScriptedExpert):
             Phase("approach", lambda: grasp_point() + up * (height - GRASP_DEPTH_M + APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.02, max_steps=60, max_step_m=0.02),
             # Settle above the item: the Sawyer's lag changes on the way and must be integrated out before the
             # fingers go down on either side of the item.
-            Phase("align", lambda: grasp_point() + up * HOVER_HEIGHT_M, GRIPPER_OPEN, tolerance_m=0.005, min_steps=3, max_steps=30, max_step_m=0.01),
-            Phase("descend", grasp_point, GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.006),
+            Phase("align", hover, GRIPPER_OPEN, tolerance_m=0.0, done=settled, min_steps=3, max_steps=40, max_step_m=0.01),
+            Phase("descend", frozen("descend", grasp_point), GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.005),
             Phase("grasp", frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
             Phase("lift", frozen("lift", lambda: env.eef_pos + up * lift_dz), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=40, max_step_m=0.01),
             Phase("carry", lambda: over_bin(carry_height), GRIPPER_CLOSED, tolerance_m=0.015, max_steps=60, max_step_m=0.02),

@@ -5,6 +5,8 @@ from __future__ import annotations
 from mosaic_data.tasks.base import ROBOTS, MosaicTaskEnv, Variation, validate_robot
 from mosaic_data.tasks.door import Door
 from mosaic_data.tasks.drawer import Drawer
+from mosaic_data.tasks.nut_assembly import NutAssembly
+from mosaic_data.tasks.pick_place import PickPlace
 from mosaic_data.tasks.press_button import PressButton
 from mosaic_data.tasks.stack_block import StackBlock
 
@@ -13,6 +15,8 @@ TASKS: dict[str, type[MosaicTaskEnv]] = {
     "drawer": Drawer,
     "press_button": PressButton,
     "stack_block": StackBlock,
+    "nut_assembly": NutAssembly,
+    "pick_place": PickPlace,
 }
 """Task key -> environment class, in the paper's order."""
 

@@ -16,10 +16,12 @@ in). Drawers, from the robot's view:
  7    right drawer of the wooden cabinet          close  all open
 ====  ==========================================  =====  ==========================================
 
-The green cabinet stands on the robot's left (+y), the wooden one on its right. Each cabinet is two of
-Meta-World's drawer cases joined side by side (scaled by ``DRAWER_SCALE``, handles by ``HANDLE_SCALE``), so that all four handles face
-the robot at the same height and a top-down hand can reach each of them. Because every drawer starts in the
-same state, only the variation (its description) tells which drawer to move.
+"Left" and "right" are the robot's (the agentview camera looks back at the robot from behind the
+cabinets, so there they appear mirrored). The green cabinet stands on the robot's left (+y), the wooden one
+on its right. Each cabinet is two of Meta-World's drawer cases joined side by side (scaled by
+``DRAWER_SCALE``; handles by ``HANDLE_SCALE``, on short spacers), so that all four handles face the robot at
+the same height and a top-down hand can reach each of them. Because every drawer starts in the same state,
+only the variation (its description) tells which drawer to move.
 
 Success: the asked drawer's slide is within ``SUCCESS_FRACTION`` of the asked end of its travel (open:
 at least 90% out; close: at most 10% out), and every other drawer is still on its starting half of the
@@ -177,13 +179,14 @@ class Drawer(MosaicTaskEnv):
 
     def _setup_task_references(self) -> None:
         self.cabinet_root_ids = {name: self.body_id(f"{name}_cabinet_main") for name in CABINET_NAMES}
-        model = self.sim.model
-        self.handle_site_ids = {
-            drawer_key(c, side): model.site_name2id(f"{c}_cabinet_handle_{side}") for c in CABINET_NAMES for side in DRAWER_SIDES
-        }
-        self.front_site_ids = {
-            drawer_key(c, side): model.site_name2id(f"{c}_cabinet_front_{side}") for c in CABINET_NAMES for side in DRAWER_SIDES
-        }
+        site_id = self.sim.model.site_name2id
+        self.handle_site_ids = {}
+        self.front_site_ids = {}
+        for cabinet in CABINET_NAMES:
+            for side in DRAWER_SIDES:
+                key = drawer_key(cabinet, side)
+                self.handle_site_ids[key] = site_id(f"{cabinet}_cabinet_handle_{side}")
+                self.front_site_ids[key] = site_id(f"{cabinet}_cabinet_front_{side}")
 
     def _place_instance(self, rng: np.random.Generator) -> None:
         start = 0.0 if self.variation.params["goal"] == "open" else 1.0

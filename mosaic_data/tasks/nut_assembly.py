@@ -170,6 +170,10 @@ class NutAssembly(MosaicTaskEnv):
     def nut_rotation(self, nut: str) -> Rotation:
         return Rotation.from_matrix(self.sim.data.xmat[self.nut_body_ids[nut]].reshape(3, 3))
 
+    def nut_velocity(self, nut: str) -> np.ndarray:
+        """Linear velocity (m/s) of the nut's centre."""
+        return np.array(self.sim.data.get_joint_qvel(self.nuts[nut].joints[0])[:3])
+
     def nut_handle_position(self, nut: str) -> np.ndarray:
         return np.array(self.sim.data.site_xpos[self.nut_handle_site_ids[nut]])
 

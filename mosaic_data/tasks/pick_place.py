@@ -20,7 +20,7 @@ The items are robosuite's :class:`~robosuite.models.objects.MilkObject`, ``Bread
 ``CerealObject`` and ``CanObject`` (free joints); the bins are robosuite's open-top
 :class:`~robosuite.models.objects.Bin` without a joint (fixtures). Every instance shuffles the four items
 over four slots in a row between the robot and the bins (``SLOT_Y_M``), with a small random offset and turn
-each, and moves the row of bins a little; all four items are always there, so only the variation (its
+each, and slides the row of bins a little along y; all four items are always there, so only the variation (its
 description) tells which item goes into which bin.
 
 Success: the asked item's centre lies over the asked bin's floor (inside its walls in x and y), the item
@@ -47,9 +47,9 @@ which are long along their closing direction, reach in between the items; the ce
 printed face to the camera."""
 BIN_NAMES = ("far_left", "mid_left", "mid_right", "far_right")
 BIN_LABELS = {"far_left": "far-left", "mid_left": "middle-left", "mid_right": "middle-right", "far_right": "far-right"}
-BIN_Y_M = (0.27, 0.09, -0.09, -0.27)
+BIN_Y_M = (0.24, 0.08, -0.08, -0.24)
 """Bin centres along y (+y is the robot's left)."""
-BIN_OUTER_SIZE_M = (0.16, 0.16, 0.05)
+BIN_OUTER_SIZE_M = (0.14, 0.14, 0.05)
 BIN_WALL_M = 0.01
 BIN_INNER_HALF_M = BIN_OUTER_SIZE_M[0] / 2 - BIN_WALL_M
 SLOT_Y_M = (0.18, 0.06, -0.06, -0.18)
@@ -77,9 +77,9 @@ def _variations() -> tuple[Variation, ...]:
 class PickPlace(MosaicTaskEnv):
     task_name: ClassVar[str] = "pick_place"
     variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 200
-    slot_x_m: ClassVar[float] = -0.16
-    bin_x_m: ClassVar[float] = 0.02
+    horizon_steps: ClassVar[int] = 250
+    slot_x_m: ClassVar[float] = -0.12
+    bin_x_m: ClassVar[float] = 0.035
     item_jitter_m: ClassVar[float] = 0.01
     item_yaw_jitter_rad: ClassVar[float] = 0.2
     bin_jitter_m: ClassVar[float] = 0.015
@@ -116,10 +116,11 @@ class PickPlace(MosaicTaskEnv):
         return points.min(axis=0), points.max(axis=0)
 
     def _place_instance(self, rng: np.random.Generator) -> None:
-        bin_shift = rng.uniform(-self.bin_jitter_m, self.bin_jitter_m, size=2)
+        # The row of bins slides along y only: one step closer to the camera and its front edge leaves the image.
+        bin_shift = rng.uniform(-self.bin_jitter_m, self.bin_jitter_m)
         for name, y in zip(BIN_NAMES, BIN_Y_M):
             centre_z = self.table_offset[2] + BIN_OUTER_SIZE_M[2] / 2
-            self.set_fixture_pose(self.bin_body_ids[name], (self.bin_x_m + bin_shift[0], y + bin_shift[1], centre_z))
+            self.set_fixture_pose(self.bin_body_ids[name], (self.bin_x_m, y + bin_shift, centre_z))
         slots = rng.permutation(len(SLOT_Y_M))
         for name, slot in zip(ITEM_NAMES, slots):
             jitter = rng.uniform(-self.item_jitter_m, self.item_jitter_m, size=2)
