@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from mosaic_data.experts.base import Phase, ScriptedExpert
+from mosaic_data.experts.basketball import BasketballExpert
 from mosaic_data.experts.door import DoorExpert
 from mosaic_data.experts.drawer import DrawerExpert
 from mosaic_data.experts.nut_assembly import NutAssemblyExpert
@@ -16,6 +17,7 @@ EXPERTS: dict[str, type[ScriptedExpert]] = {
     "drawer": DrawerExpert,
     "press_button": PressButtonExpert,
     "stack_block": StackBlockExpert,
+    "basketball": BasketballExpert,
     "nut_assembly": NutAssemblyExpert,
     "pick_place": PickPlaceExpert,
 }

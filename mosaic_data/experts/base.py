@@ -82,7 +82,27 @@ class ScriptedExpert:
         self._command_pos: np.ndarray | None = None
         self._command_rot: Rotation | None = None
         self._offset = np.zeros(3)
+        self._frozen_targets: dict[str, np.ndarray] = {}
         self.retries = 0
+
+    def start_over(self) -> None:
+        """Restart the script from its first phase (after a failed grasp), keeping the tracking offset."""
+        retries, offset = self.retries, self._offset
+        self.reset()
+        self.retries, self._offset = retries + 1, offset
+
+    def frozen(self, key: str, point: Callable[[], np.ndarray]) -> Callable[[], np.ndarray]:
+        """A phase target fixed at ``point()`` the first time it is asked for, until the next (re)start.
+
+        For moves relative to an object the hand itself displaces: the hand must not chase it.
+        """
+
+        def target() -> np.ndarray:
+            if key not in self._frozen_targets:
+                self._frozen_targets[key] = np.asarray(point(), dtype=float)
+            return self._frozen_targets[key]
+
+        return target
 
     @property
     def phase_name(self) -> str:
@@ -142,6 +162,22 @@ class ScriptedExpert:
             self._phase_steps = 0
 
 
+class GraspingExpert(ScriptedExpert):
+    """An expert that carries an object: if the object is not in the hand during a carrying phase, start over."""
+
+    carrying_phases: tuple[str, ...] = ("carry",)
+    max_retries: int = 2
+
+    def act(self, obs=None, env=None) -> np.ndarray:
+        if self.phase_name in self.carrying_phases and not self.holding() and self.retries < self.max_retries:
+            self.start_over()
+        return super().act(obs, env)
+
+    def holding(self) -> bool:
+        """True while the carried object is lifted and in contact with the gripper."""
+        raise NotImplementedError
+
+
 def _turn_towards(current: Rotation, goal: Rotation, max_turn: float) -> Rotation:
     angle = (current.inv() * goal).magnitude()
     if angle <= max_turn:
@@ -149,4 +185,4 @@ def _turn_towards(current: Rotation, goal: Rotation, max_turn: float) -> Rotatio
     return Slerp([0.0, 1.0], Rotation.concatenate([current, goal]))(max_turn / angle)
 
 
-__all__ = ["GRIPPER_CLOSED", "GRIPPER_OPEN", "Phase", "ScriptedExpert", "TOP_DOWN", "top_down"]
+__all__ = ["GRIPPER_CLOSED", "GRIPPER_OPEN", "GraspingExpert", "Phase", "ScriptedExpert", "TOP_DOWN", "top_down"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, top_down
+from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
 from mosaic_data.tasks.basketball import BALL_RADIUS_M, Basketball
 
 APPROACH_HEIGHT_M = 0.10
@@ -35,26 +35,18 @@ LIFTED_M = 0.02
 MAX_RETRIES = 2
 
 
-class BasketballExpert(ScriptedExpert):
+class BasketballExpert(GraspingExpert):
     env: Basketball
     hand_yaw: float = np.pi / 2
 
-    def act(self, obs=None, env=None) -> np.ndarray:
-        if self.phase_name in ("carry", "come_over", "centre", "lower") and not self._holding() and self.retries < MAX_RETRIES:
-            self._start_over()
-        return super().act(obs, env)
+    carrying_phases = ("carry", "come_over", "centre", "lower")
+    max_retries = MAX_RETRIES
 
-    def _holding(self) -> bool:
+    def holding(self) -> bool:
         ball = self.variation.params["ball"]
         lifted = self.env.ball_position(ball)[2] - BALL_RADIUS_M - self.env.table_offset[2]
         touching = self.env.check_contact(self.env.robot.gripper["right"], self.env.balls[ball])
         return bool(lifted > LIFTED_M and touching)
-
-    def _start_over(self) -> None:
-        """The ball slipped out of the fingers: grasp it again where it lies (keeping the learned offset)."""
-        retries, offset = self.retries, self._offset
-        self.reset()
-        self.retries, self._offset = retries + 1, offset
 
     def phases(self) -> list[Phase]:
         env = self.env

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, top_down
+from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
 from mosaic_data.tasks.nut_assembly import NUT_HALF_THICKNESS_M, PEG_HEIGHT_M, NutAssembly
 
 APPROACH_HEIGHT_M = 0.10
@@ -45,24 +45,16 @@ def _fold_yaw(yaw: float) -> float:
     return (yaw + np.pi / 2) % np.pi - np.pi / 2
 
 
-class NutAssemblyExpert(ScriptedExpert):
+class NutAssemblyExpert(GraspingExpert):
     env: NutAssembly
 
-    def act(self, obs=None, env=None) -> np.ndarray:
-        if self.phase_name in ("carry", "come_over", "centre", "lower") and not self._holding() and self.retries < MAX_RETRIES:
-            self._start_over()
-        return super().act(obs, env)
+    carrying_phases = ("carry", "come_over", "centre", "lower")
+    max_retries = MAX_RETRIES
 
-    def _holding(self) -> bool:
+    def holding(self) -> bool:
         nut = self.variation.params["nut"]
         lifted = self.env.nut_position(nut)[2] - NUT_HALF_THICKNESS_M - self.env.table_offset[2]
         return bool(lifted > LIFTED_M and not self.env.is_released(nut))
-
-    def _start_over(self) -> None:
-        """The nut slipped out of the fingers: grasp it again where it lies (keeping the learned offset)."""
-        retries, offset = self.retries, self._offset
-        self.reset()
-        self.retries, self._offset = retries + 1, offset
 
     def phases(self) -> list[Phase]:
         env = self.env

@@ -16,11 +16,9 @@ item is not in the hand after the lift, the expert starts over, at most ``MAX_RE
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, top_down
+from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
 from mosaic_data.tasks.pick_place import PickPlace
 
 APPROACH_HEIGHT_M = 0.10
@@ -51,30 +49,22 @@ def _hand_yaw(item_yaw: float, centre: float) -> float:
     return (item_yaw - centre + np.pi / 2) % np.pi - np.pi / 2 + centre
 
 
-class PickPlaceExpert(ScriptedExpert):
+class PickPlaceExpert(GraspingExpert):
     env: PickPlace
 
     max_offset_m: float = 0.07
     """The Sawyer lags its target by up to 5 cm near its base, where the items stand."""
 
-    def act(self, obs=None, env=None) -> np.ndarray:
-        if self.phase_name == "carry" and not self._holding() and self.retries < MAX_RETRIES:
-            self._start_over()
-        return super().act(obs, env)
+    max_retries = MAX_RETRIES
 
     def _item_bottom_z(self) -> float:
         item = self.variation.params["item"]
         return float(self.env.item_position(item)[2] + self.env.item_extents[item][0][2])
 
-    def _holding(self) -> bool:
+    def holding(self) -> bool:
         item = self.variation.params["item"]
         lifted = self._item_bottom_z() - self.env.table_offset[2]
         return bool(lifted > LIFTED_M and self.env.check_contact(self.env.robot.gripper["right"], self.env.items[item]))
-
-    def _start_over(self) -> None:
-        retries, offset = self.retries, self._offset
-        self.reset()
-        self.retries, self._offset = retries + 1, offset
 
     def phases(self) -> list[Phase]:
         env = self.env
@@ -106,18 +96,6 @@ class PickPlaceExpert(ScriptedExpert):
         def touching() -> bool:
             return env.check_contact(env.items[item], env.bins[bin_name])
 
-        memo: dict[str, np.ndarray] = {}
-
-        def frozen(key: str, point: Callable[[], np.ndarray]) -> Callable[[], np.ndarray]:
-            """A target fixed at ``point()`` when the phase starts (the hand must not chase an item it moves)."""
-
-            def target() -> np.ndarray:
-                if key not in memo:
-                    memo[key] = point()
-                return memo[key]
-
-            return target
-
         lift_dz = table_z + CARRY_CLEARANCE_M - (start[2] + low[2])
 
         def hover() -> np.ndarray:
@@ -138,19 +116,19 @@ class PickPlaceExpert(ScriptedExpert):
 
         return [
             # Turn the hand on the spot first: turning while reaching over the items makes the arms' wrists flip.
-            Phase("turn", frozen("turn", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, done=turned, max_steps=20),
+            Phase("turn", self.frozen("turn", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, done=turned, max_steps=20),
             Phase("approach", lambda: grasp_point() + up * (height - GRASP_DEPTH_M + APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.02, max_steps=60, max_step_m=0.02),
             # Settle above the item: the Sawyer's lag changes on the way and must be integrated out before the
             # fingers go down on either side of the item.
             Phase("align", hover, GRIPPER_OPEN, tolerance_m=0.0, done=settled, min_steps=3, max_steps=40, max_step_m=0.01),
-            Phase("descend", frozen("descend", grasp_point), GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.005),
-            Phase("grasp", frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
-            Phase("lift", frozen("lift", lambda: env.eef_pos + up * lift_dz), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=40, max_step_m=0.01),
+            Phase("descend", self.frozen("descend", grasp_point), GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.005),
+            Phase("grasp", self.frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
+            Phase("lift", self.frozen("lift", lambda: env.eef_pos + up * lift_dz), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=40, max_step_m=0.01),
             Phase("carry", lambda: over_bin(carry_height), GRIPPER_CLOSED, tolerance_m=0.015, max_steps=60, max_step_m=0.02),
             Phase("lower", lambda: over_bin(PLACE_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.006, done=touching, max_steps=40, max_step_m=0.01),
-            Phase("release", frozen("release", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, min_steps=8, max_steps=8),
+            Phase("release", self.frozen("release", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, min_steps=8, max_steps=8),
             Phase(
-                "retreat", frozen("retreat", lambda: env.eef_pos + up * APPROACH_HEIGHT_M), GRIPPER_OPEN,
+                "retreat", self.frozen("retreat", lambda: env.eef_pos + up * APPROACH_HEIGHT_M), GRIPPER_OPEN,
                 tolerance_m=0.02, max_steps=30, max_step_m=0.01,
             ),
         ]

@@ -10,11 +10,9 @@ expert starts over from the approach, at most ``MAX_RETRIES`` times.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, top_down
+from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
 from mosaic_data.tasks.stack_block import CUBE_HALF_SIZE_M, StackBlock
 
 APPROACH_HEIGHT_M = 0.10
@@ -37,26 +35,18 @@ def _wrap_quarter(angle: float) -> float:
     return (angle + np.pi / 4) % (np.pi / 2) - np.pi / 4
 
 
-class StackBlockExpert(ScriptedExpert):
+class StackBlockExpert(GraspingExpert):
     env: StackBlock
 
     max_offset_m: float = 0.07
     """The Sawyer lags its target by up to 4 cm over the cubes' region (more the closer to its base)."""
 
-    def act(self, obs=None, env=None) -> np.ndarray:
-        if self.phase_name == "carry" and not self._holding() and self.retries < MAX_RETRIES:
-            self._start_over()
-        return super().act(obs, env)
+    max_retries = MAX_RETRIES
 
-    def _holding(self) -> bool:
+    def holding(self) -> bool:
         picked = self.variation.params["picked"]
         lifted = self.env.cube_position(picked)[2] - CUBE_HALF_SIZE_M - self.env.table_offset[2]
         return bool(lifted > LIFTED_M and self.env.check_contact(self.env.robot.gripper["right"], self.env.cubes[picked]))
-
-    def _start_over(self) -> None:
-        retries, offset = self.retries, self._offset
-        self.reset()
-        self.retries, self._offset = retries + 1, offset
 
     def phases(self) -> list[Phase]:
         env = self.env
@@ -83,18 +73,6 @@ class StackBlockExpert(ScriptedExpert):
         def touching() -> bool:
             return env.check_contact(env.cubes[picked], env.cubes[base])
 
-        memo: dict[str, np.ndarray] = {}
-
-        def frozen(key: str, point: Callable[[], np.ndarray]) -> Callable[[], np.ndarray]:
-            """A target fixed at ``point()`` when the phase starts (the hand must not chase a cube it moves)."""
-
-            def target() -> np.ndarray:
-                if key not in memo:
-                    memo[key] = point()
-                return memo[key]
-
-            return target
-
         carry_orientation = top_down(place_yaw)
         return [
             Phase("approach", lambda: grasp_point() + up * APPROACH_HEIGHT_M, GRIPPER_OPEN, tolerance_m=0.015, max_steps=60),
@@ -102,8 +80,8 @@ class StackBlockExpert(ScriptedExpert):
             # fingers go down on either side of the cube.
             Phase("align", lambda: grasp_point() + up * HOVER_HEIGHT_M, GRIPPER_OPEN, tolerance_m=0.005, min_steps=3, max_steps=30, max_step_m=0.006),
             Phase("descend", grasp_point, GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.006),
-            Phase("grasp", frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
-            Phase("lift", frozen("lift", lambda: env.eef_pos + up * CARRY_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=30, max_step_m=0.01),
+            Phase("grasp", self.frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
+            Phase("lift", self.frozen("lift", lambda: env.eef_pos + up * CARRY_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=30, max_step_m=0.01),
             Phase(
                 "carry", lambda: place_point(CARRY_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.012, max_steps=60,
                 orientation=carry_orientation,
@@ -112,7 +90,7 @@ class StackBlockExpert(ScriptedExpert):
                 "lower", lambda: place_point(PLACE_DROP_M), GRIPPER_CLOSED, tolerance_m=0.004, done=touching,
                 max_steps=40, max_step_m=0.006, orientation=carry_orientation,
             ),
-            Phase("release", frozen("release", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, min_steps=8, max_steps=8, orientation=carry_orientation),
+            Phase("release", self.frozen("release", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, min_steps=8, max_steps=8, orientation=carry_orientation),
             Phase(
                 "retreat", lambda: env.cube_position(base) + up * (3 * h + APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.02,
                 max_steps=30, max_step_m=0.01, orientation=carry_orientation,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from mosaic_data.tasks.base import ROBOTS, MosaicTaskEnv, Variation, validate_robot
+from mosaic_data.tasks.basketball import Basketball
 from mosaic_data.tasks.door import Door
 from mosaic_data.tasks.drawer import Drawer
 from mosaic_data.tasks.nut_assembly import NutAssembly
@@ -15,6 +16,7 @@ TASKS: dict[str, type[MosaicTaskEnv]] = {
     "drawer": Drawer,
     "press_button": PressButton,
     "stack_block": StackBlock,
+    "basketball": Basketball,
     "nut_assembly": NutAssembly,
     "pick_place": PickPlace,
 }

@@ -22,8 +22,9 @@ near = closer to the robot):
 
 The hoops are Meta-World's basketball hoop (backboard, pole and rim meshes, with its collision geoms), two on
 each side of the table with their rims facing the middle, so that the camera sees the balls and the rims
-(a row of backboards across the table would hide the balls from it); each instance jitters every hoop by up
-to ``HOOP_JITTER_M``. The balls are Meta-World's basketball (its meshes scaled by ``BALL_SCALE`` so that it
+(a row of backboards across the table would hide the balls from it); their poles stand ``HOOP_SUNK_M`` deep in
+holes in the table, so that the Panda reaches over the rims with its hand pointing down. Each instance jitters
+every hoop by up to ``HOOP_JITTER_M``. The balls are Meta-World's basketball (its meshes scaled by ``BALL_SCALE`` so that it
 passes the rim with a centimetre to spare, the outer skin recoloured), on free joints. Every instance places
 the three balls at random, non-overlapping spots in the middle of the table (at least ``MIN_BALL_DISTANCE_M``
 apart); which colour lies where is part of the same draw.
@@ -62,7 +63,7 @@ RIM_OFFSET_M = 0.083
 RIM_INNER_RADIUS_M = 0.034
 """Radius of the rim's hole (the rim's capsules' inner side)."""
 RIM_Y_M = 0.28
-"""Distance of the rims' centres from the table's middle line; the Sawyer's hand starts 0.17 m to its left."""
+"""Distance of the rims' centres from the table's middle line (the Sawyer's hand starts 0.17 m to its left)."""
 HOOP_SUNK_M = 0.07
 """The hoops' poles stand in holes in the table, so that their rims are within the Panda's top-down reach."""
 MIN_BALL_DISTANCE_M = 0.1
