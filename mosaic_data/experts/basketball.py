@@ -38,6 +38,7 @@ MAX_RETRIES = 2
 class BasketballExpert(GraspingExpert):
     env: Basketball
     hand_yaw: float = np.pi / 2
+    """Yaw of the top-down hand: fingers closing along world x, the hand's long side parallel to the backboards."""
 
     carrying_phases = ("carry", "come_over", "centre", "lower")
     max_retries = MAX_RETRIES
