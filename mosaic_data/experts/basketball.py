@@ -63,17 +63,9 @@ class BasketballExpert(GraspingExpert):
         def over_ball(height: float):
             return lambda: grasp() + np.array([0.0, 0.0, height])
 
-        frozen: dict[str, np.ndarray] = {}
-
         def hold_where_started(key: str, target=None):
             """The grip site's position when the phase started (or ``target()`` then), held for the whole phase."""
-
-            def held() -> np.ndarray:
-                if key not in frozen:
-                    frozen[key] = env.eef_pos if target is None else target()
-                return frozen[key]
-
-            return held
+            return self.frozen(key, target if target is not None else (lambda: env.eef_pos))
 
         rim = env.rim_position(hoop)
         rim_top = env.rim_top_z(hoop)

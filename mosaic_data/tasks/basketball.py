@@ -37,14 +37,13 @@ cleared by ``reset``.
 
 from __future__ import annotations
 
-import hashlib
 from typing import ClassVar
 
 import numpy as np
 from robosuite.models.objects import MujocoXMLObject
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
-from mosaic_data.tasks.fixtures import _CACHE_DIR, FixtureBuilder
+from mosaic_data.tasks.fixtures import FixtureBuilder
 
 BALL_COLOURS: dict[str, tuple[float, float, float, float]] = {
     "orange": (0.95, 0.45, 0.05, 1.0),
@@ -94,16 +93,7 @@ def _build_ball(name: str, rgba) -> MujocoXMLObject:
         f'<geom name="ball" type="sphere" size="{BALL_RADIUS_M:g}" group="0" rgba="0.5 0.5 0.5 1" mass="0.1" '
         'friction="1 0.005 0.002" condim="6" solref="0.01 1" solimp="0.99 0.99 0.01"/>'
     )
-    xml = fixture.to_xml()
-    _CACHE_DIR.mkdir(parents=True, exist_ok=True)
-    path = _CACHE_DIR / f"{name}_{hashlib.sha1(xml.encode()).hexdigest()[:12]}.xml"
-    if not path.exists():
-        tmp = path.with_suffix(f".{id(fixture)}.tmp")
-        tmp.write_text(xml)
-        tmp.replace(path)
-    return MujocoXMLObject(
-        str(path), name=name, joints=[dict(type="free", damping="0.0005")], obj_type="all", duplicate_collision_geoms=False
-    )
+    return fixture.build(joints=[dict(type="free", damping="0.0005")])
 
 
 def _build_hoop(name: str):

@@ -125,8 +125,12 @@ class FixtureBuilder:
             + "\n</body>\n</body>\n</worldbody>\n</mujoco>\n"
         )
 
-    def build(self) -> MujocoXMLObject:
-        """Write the MJCF to a content-addressed cache file and load it as a fixed (jointless) object."""
+    def build(self, joints: list[dict] | None = None) -> MujocoXMLObject:
+        """Write the MJCF to a content-addressed cache file and load it as an object.
+
+        ``joints`` as robosuite takes them (e.g. ``[{"type": "free"}]`` for a loose object); none by default,
+        which makes a fixed fixture.
+        """
         xml = self.to_xml()
         _CACHE_DIR.mkdir(parents=True, exist_ok=True)
         path = _CACHE_DIR / f"{self.name}_{hashlib.sha1(xml.encode()).hexdigest()[:12]}.xml"
@@ -134,4 +138,4 @@ class FixtureBuilder:
             tmp = path.with_suffix(f".{id(self)}.tmp")
             tmp.write_text(xml)
             tmp.replace(path)
-        return MujocoXMLObject(str(path), name=self.name, joints=None, duplicate_collision_geoms=False)
+        return MujocoXMLObject(str(path), name=self.name, joints=joints, duplicate_collision_geoms=False)
