@@ -27,14 +27,9 @@ def collect(root: Path, repo_id: str, task: str, robot: str, variations, episode
     from mosaic_data.rollout import run_expert_episode
     from mosaic_data.tasks import make_task_env
 
-    features = {
-        IMAGE_KEY: {"dtype": "video", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
-        "observation.state": {"dtype": "float32", "shape": (10,), "names": None},
-        "action": {"dtype": "float32", "shape": (7,), "names": None},
-        "variation": {"dtype": "int64", "shape": (1,), "names": None},
-        "next.success": {"dtype": "bool", "shape": (1,), "names": None},
-        "next.done": {"dtype": "bool", "shape": (1,), "names": None},
-    }
+    from mosaic_data.collection.schema import dataset_features
+
+    features = dataset_features(height, width)
     dataset = LeRobotDataset.create(repo_id, 20, features, root=root, use_videos=True)
     for variation in variations:
         env = make_task_env(task, variation, robot, image_height=height, image_width=width)

@@ -47,14 +47,9 @@ def read_variation_rank(frame: torch.Tensor) -> tuple[int, int]:
 def write_dataset(root, repo_id, variations, episodes_per_variation=2, length=12, height=HEIGHT, width=WIDTH):
     from lerobot.datasets import LeRobotDataset
 
-    features = {
-        IMAGE_KEY: {"dtype": "video", "shape": (height, width, 3), "names": ["height", "width", "channels"]},
-        "observation.state": {"dtype": "float32", "shape": (10,), "names": None},
-        "action": {"dtype": "float32", "shape": (7,), "names": None},
-        "variation": {"dtype": "int64", "shape": (1,), "names": None},
-        "next.success": {"dtype": "bool", "shape": (1,), "names": None},
-        "next.done": {"dtype": "bool", "shape": (1,), "names": None},
-    }
+    from mosaic_data.collection.schema import dataset_features
+
+    features = dataset_features(height, width)
     dataset = LeRobotDataset.create(repo_id, FPS, features, root=root, use_videos=True, image_writer_threads=0)
     rng = np.random.default_rng(0)
     for rank in range(episodes_per_variation):
