@@ -12,16 +12,10 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+from mosaic_data.cli_args import parse_int_list
 from mosaic_data.collection import CollectionError
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-
-
-def _parse_int_list(text: str) -> list[int]:
-    try:
-        return [int(part) for part in text.split(",") if part.strip() != ""]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 0,3,5, got {text!r}") from None
 
 
 def _robots(choice: str) -> list[str]:
@@ -117,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     experts.add_argument("--task", required=True, help="task key, e.g. door (see `mosaic-data tasks`)")
     experts.add_argument("--robot", default="both", choices=["panda", "sawyer", "both"])
     experts.add_argument("--episodes", type=int, default=20, help="episodes (fresh seeds) per variation and robot")
-    experts.add_argument("--variations", type=_parse_int_list, default=None, help="e.g. 0,3 (default: all)")
+    experts.add_argument("--variations", type=parse_int_list, default=None, help="e.g. 0,3 (default: all)")
     experts.add_argument("--seed", type=int, default=0, help="first instance seed; episode k uses seed+k")
     output = experts.add_mutually_exclusive_group()
     output.add_argument("--video", type=Path, default=None, help="write all episodes to this mp4")

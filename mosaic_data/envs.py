@@ -31,6 +31,9 @@ GYM_NAMES: dict[str, str] = {
 WORKSPACE_LOW = np.array([-0.6, -0.6, 0.75])
 WORKSPACE_HIGH = np.array([0.5, 0.6, 1.5])
 """Bounds (m) of the action's target position, a box around the table that both robots can reach."""
+ACTION_LOW = np.concatenate([WORKSPACE_LOW, [-np.pi] * 3, [-1.0]]).astype(np.float32)
+ACTION_HIGH = np.concatenate([WORKSPACE_HIGH, [np.pi] * 3, [1.0]]).astype(np.float32)
+"""The action box: target position in the workspace, axis-angle components in [-pi, pi], gripper in [-1, 1]."""
 
 
 def gym_id(task: str) -> str:
@@ -62,17 +65,14 @@ class MosaicGymEnv(gym.Env):
         self.render_mode = render_mode
         self.observe_image = observe_image
         self.horizon = self.task_env.horizon
+        self._max_episode_steps = self.horizon  # what LeRobot's evaluation loop reads as the episode length
         observation = {"agent_pos": spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32)}
         if observe_image:
             observation["pixels"] = spaces.Dict(
                 {"agentview": spaces.Box(0, 255, (image_height, image_width, 3), np.uint8)}
             )
         self.observation_space = spaces.Dict(observation)
-        self.action_space = spaces.Box(
-            low=np.concatenate([WORKSPACE_LOW, [-np.pi] * 3, [-1.0]]).astype(np.float32),
-            high=np.concatenate([WORKSPACE_HIGH, [np.pi] * 3, [1.0]]).astype(np.float32),
-            dtype=np.float32,
-        )
+        self.action_space = spaces.Box(low=ACTION_LOW, high=ACTION_HIGH, dtype=np.float32)
         self._steps = 0
 
     # ------------------------------------------------------------------ gymnasium API

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Container, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,18 +40,20 @@ def run_expert_episode(
     record_frames: bool = False,
     expert_variation: int | None = None,
     record_final_frame: bool = True,
+    frame_steps: Container[int] | None = None,
 ) -> Episode:
     """Reset ``env`` to ``seed`` and let the expert act until success or the horizon.
 
     Frames are rendered only when ``record_frames`` is set: rendering is most of the cost on a CPU.
     With ``record_final_frame`` the frame after the last action is recorded too (one frame more than
-    actions); datasets pair every frame with its action and leave it out.
+    actions); datasets pair every frame with its action and leave it out. ``frame_steps`` restricts the
+    recorded frames to those steps (a replay that needs only a few frames of a known episode).
     """
     env.reset_to_seed(seed)
     expert = make_expert(env, expert_variation)
     episode = Episode(env.task_name, env.robot_key, env.variation_index, seed, env.variation.description)
     for _ in range(env.horizon):
-        if record_frames:
+        if record_frames and (frame_steps is None or episode.length in frame_steps):
             episode.frames.append(env.render_agentview())
         episode.states.append(env.robot_state())
         action = expert.act()
@@ -62,7 +64,7 @@ def run_expert_episode(
         if episode.successes[-1]:
             episode.success = True
             break
-    if record_frames and record_final_frame:
+    if record_frames and record_final_frame and (frame_steps is None or episode.length in frame_steps):
         episode.frames.append(env.render_agentview())
     return episode
 

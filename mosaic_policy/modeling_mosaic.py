@@ -11,7 +11,9 @@ frames come from `batch["demo_frames"]` if present, else from the policy's `Pair
 `config.demo_repo_id` (same variation, another instance).
 
 Inference: `policy.reset()` then `policy.set_demo(video)` once per episode (the demo tokens and every
-layer's demo keys/values are cached), then `select_action(batch)` with one current frame per step.
+layer's demo keys/values are cached), then `select_action(batch)` with one current frame per step. An
+environment can deliver the demonstration itself as the observation `observation.demo` (what
+`lerobot-eval --env.type=mosaic` does): the first `select_action` after `reset()` caches it.
 """
 
 import functools
@@ -33,6 +35,7 @@ from .discretized_logistic import DiscretizedLogisticHead, DiscretizedLogisticMi
 from .paired_sampling import PairedDemoSampler, demo_frame_indices
 
 DEMO_FRAMES = "demo_frames"  # optional batch key: (B, n_demo_frames, 3, H, W) float in [0, 1]
+OBS_DEMO = "observation.demo"  # the same, delivered by the environment as an observation (inference only)
 EMBED_CHANNELS = 32  # channels kept per location before flattening a frame's features into its embedding
 
 
@@ -259,12 +262,13 @@ class MosaicPolicy(PreTrainedPolicy):
 
     def _act(self, batch: dict[str, Tensor], return_weights: bool = False) -> tuple[Tensor, list[Tensor]]:
         if self._demo_cache is None:
-            if DEMO_FRAMES in batch:
-                self.set_demo(batch[DEMO_FRAMES])
-            else:
+            demo = next((batch[key] for key in (DEMO_FRAMES, OBS_DEMO) if key in batch), None)
+            if demo is None:
                 raise RuntimeError(
-                    "MOSAIC needs a demonstration: call policy.set_demo(video) after policy.reset(), once per episode."
+                    "MOSAIC needs a demonstration: call policy.set_demo(video) after policy.reset(), once per "
+                    f"episode (or give it in the batch as '{DEMO_FRAMES}' or '{OBS_DEMO}')."
                 )
+            self.set_demo(demo)
         image = batch[self.camera_key]
         if image.dim() == 5:  # (B, T, 3, H, W): keep the current (last) frame
             image = image[:, -1]

@@ -34,11 +34,11 @@ fi
 
 stamp=.venv/.mosaic-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -nt "$stamp" ] \
-    || [ plugins/lerobot_policy_mosaic/pyproject.toml -nt "$stamp" ]; then
+    || [ plugins/lerobot_policy_mosaic/pyproject.toml -nt "$stamp" ] || [ plugins/lerobot_env_mosaic/pyproject.toml -nt "$stamp" ]; then
     echo "[setup] installing Python packages (first time: about 2 minutes, 7 GB)"
     .venv/bin/python -m pip install -q --upgrade pip
-    # The plugin distribution is what LeRobot's discovery imports for --policy.type=mosaic.
-    .venv/bin/python -m pip install -q -e ".[test]" -e plugins/lerobot_policy_mosaic
+    # The plugin distributions are what LeRobot's discovery imports for --policy.type=mosaic / --env.type=mosaic.
+    .venv/bin/python -m pip install -q -e ".[test]" -e plugins/lerobot_policy_mosaic -e plugins/lerobot_env_mosaic
     touch "$stamp"
 fi
 

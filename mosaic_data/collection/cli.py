@@ -7,22 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-
-def _parse_int_list(text: str) -> list[int]:
-    try:
-        return [int(part) for part in text.split(",") if part.strip() != ""]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 0,3,5, got {text!r}") from None
-
-
-def _parse_image_size(text: str) -> tuple[int, int]:
-    try:
-        height, width = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected HEIGHTxWIDTH such as 100x180, got {text!r}") from None
-    if height < 16 or width < 16:
-        raise argparse.ArgumentTypeError(f"images must be at least 16x16, got {text!r}")
-    return height, width
+from mosaic_data.cli_args import parse_image_size, parse_int_list
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
@@ -128,7 +113,7 @@ def add_collection_commands(sub) -> None:
     )
     collect.add_argument("--task", required=True, help="task key (see `mosaic-data tasks`), or 'all' for the suite plus merged mosaic/all_<robot>")
     collect.add_argument("--robot", default="both", choices=["panda", "sawyer", "both"])
-    collect.add_argument("--variations", type=_parse_int_list, default=None, help="e.g. 0,3,5; None means every variation")
+    collect.add_argument("--variations", type=parse_int_list, default=None, help="e.g. 0,3,5; None means every variation")
     collect.add_argument("--episodes", type=int, default=100, help="successful episodes per variation and robot")
     collect.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes")
     collect.add_argument("--output-dir", type=Path, default=None, help=where)
@@ -136,7 +121,7 @@ def add_collection_commands(sub) -> None:
     collect.add_argument("--overwrite", action="store_true", help="redo datasets that already exist, and discard unfinished runs")
     collect.add_argument("--quiet", action="store_true", help="no progress bar")
     # Smaller images only to keep tests fast; datasets for users keep the paper's 100x180.
-    collect.add_argument("--image-size", type=_parse_image_size, default=(100, 180), help=argparse.SUPPRESS)
+    collect.add_argument("--image-size", type=parse_image_size, default=(100, 180), help=argparse.SUPPRESS)
     collect.set_defaults(func=cmd_collect)
 
     merge = sub.add_parser("merge", help="merge datasets of one robot into one with LeRobot's aggregation", formatter_class=defaults)

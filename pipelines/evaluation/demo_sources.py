@@ -1,0 +1,120 @@
+"""Where an evaluation episode's demonstration comes from: the demonstrator's expert on a fresh instance (the
+paper's protocol), or an episode of a held-out demonstrator dataset (`mosaic-eval --demo-dataset`)."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mosaic_data.demos import Demonstration, record_demonstration
+from mosaic_data.tasks import get_task_class, make_task_env
+
+from .agents import CAMERA_KEY, EvaluationError
+
+DEMONSTRATOR = "sawyer"
+PickFrames = Callable[[int], Sequence[int]] | None
+
+
+@dataclass(frozen=True)
+class DemoSourceSpec:
+    """Plain-data description of a demo source, built again inside every worker process."""
+
+    dataset: str | None = None  # a local LeRobot dataset folder; None: the demonstrator's expert, fresh seeds
+    robot: str = DEMONSTRATOR
+
+
+class ExpertDemoSource:
+    """A new demonstration per episode, by the demonstrator's scripted expert (environments kept per variation)."""
+
+    def __init__(self, robot: str = DEMONSTRATOR, image_hw: tuple[int, int] = (100, 180), max_envs: int = 4) -> None:
+        self.robot = robot
+        self.image_hw = image_hw
+        self._envs: OrderedDict[tuple[str, int], object] = OrderedDict()
+        self._max_envs = max_envs
+
+    def demonstration(self, task: str, variation: int, seed: int, pick_frames: PickFrames) -> Demonstration:
+        return record_demonstration(self._env(task, variation), seed, pick_frames)
+
+    def _env(self, task: str, variation: int):
+        key = (task, variation)
+        if key in self._envs:
+            self._envs.move_to_end(key)
+            return self._envs[key]
+        if len(self._envs) >= self._max_envs:
+            _, oldest = self._envs.popitem(last=False)
+            oldest.close()
+        env = make_task_env(task, variation, self.robot, image_height=self.image_hw[0], image_width=self.image_hw[1])
+        self._envs[key] = env
+        return env
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()
+
+
+class DatasetDemoSource:
+    """Demonstrations drawn from a recorded demonstrator dataset: for every episode, one recorded episode of the
+    same variation (same LeRobot task string), chosen by the episode's demo seed."""
+
+    def __init__(self, root: str | Path, image_hw: tuple[int, int]) -> None:
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        from mosaic_data.collection.schema import repo_id_of
+
+        root = Path(root)
+        self.dataset = LeRobotDataset(repo_id_of(root), root=root)
+        shape = tuple(self.dataset.meta.features.get(CAMERA_KEY, {}).get("shape", ()))
+        if shape[:2] != tuple(image_hw):
+            raise EvaluationError(
+                f"demo dataset {root} has {CAMERA_KEY} of shape {shape} but the policy sees {image_hw[0]}x{image_hw[1]} "
+                "frames: collect the demonstrations at the policy's image size"
+            )
+        episodes = self.dataset.meta.episodes
+        self._episodes_of: dict[str, list[tuple[int, int]]] = {}
+        for index in range(len(episodes)):
+            record = episodes[index]
+            start = int(record["dataset_from_index"])
+            length = int(record["dataset_to_index"]) - start
+            for description in record["tasks"]:
+                self._episodes_of.setdefault(description, []).append((start, length))
+        self.root = root
+
+    def check_covers(self, task: str, variations: Sequence[int]) -> None:
+        """Fail before any rollout if a variation has no recorded demonstration."""
+        task_class = get_task_class(task)
+        for variation in variations:
+            description = task_class.variations[variation].description
+            if description not in self._episodes_of:
+                raise EvaluationError(
+                    f"demo dataset {self.root} has no episode of {task} variation {variation} ({description!r}): "
+                    f"collect it with `mosaic-data collect --task {task} --robot sawyer --variations {variation}`"
+                )
+
+    def demonstration(self, task: str, variation: int, seed: int, pick_frames: PickFrames) -> Demonstration:
+        description = get_task_class(task).variations[variation].description
+        candidates = self._episodes_of.get(description)
+        if not candidates:
+            raise EvaluationError(f"demo dataset {self.root} has no episode of {task} variation {variation}")
+        choice = int(np.random.default_rng(seed).integers(len(candidates)))
+        start, length = candidates[choice]
+        indices = list(range(length)) if pick_frames is None else [int(i) for i in pick_frames(length)]
+        frames = [self._frame(start + i) for i in indices]
+        return Demonstration(task, DEMONSTRATOR, variation, seed, length, indices, np.stack(frames))
+
+    def _frame(self, index: int) -> np.ndarray:
+        image = self.dataset[index][CAMERA_KEY]  # (3, H, W) float in [0, 1]
+        return (image.permute(1, 2, 0).clamp(0, 1) * 255).round().byte().numpy()
+
+    def close(self) -> None:
+        pass
+
+
+def build_demo_source(spec: DemoSourceSpec, image_hw: tuple[int, int]):
+    if spec.dataset is None:
+        return ExpertDemoSource(spec.robot, image_hw)
+    return DatasetDemoSource(spec.dataset, image_hw)

@@ -1,0 +1,124 @@
+"""What an evaluation runs: its agents, its episodes (with their seeds) and its demo source, checked up front.
+
+Every bad input is found here, before any worker starts: unknown task, variation out of range, a checkpoint
+that is not a MOSAIC policy, a demo dataset that lacks a variation or has another image size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mosaic_data.tasks import TASKS, get_task_class
+from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
+
+from .agents import AgentSpec, EvaluationError, checkpoint_image_hw, resolve_checkpoint
+from .demo_sources import DatasetDemoSource, DemoSourceSpec
+from .rollouts import MAX_EPISODES_PER_VARIATION, EpisodeSpec, episode_seeds
+
+POLICY_GROUP = "mosaic"
+
+
+@dataclass
+class EvaluationPlan:
+    tasks: dict[str, list[int]]
+    agents: list[AgentSpec]
+    groups: dict[str, dict[int, str]]
+    demo_source: DemoSourceSpec
+    episodes_per_variation: int
+    seed: int
+    episodes: list[EpisodeSpec] = field(default_factory=list)
+    n_demo_frames: int = 4
+    max_steps: int | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> EvaluationPlan:
+        tasks = _tasks_and_variations(args.task, args.variations)
+        if not 1 <= args.episodes_per_variation <= MAX_EPISODES_PER_VARIATION:
+            raise EvaluationError(
+                f"--episodes-per-variation must be in 1..{MAX_EPISODES_PER_VARIATION}, got {args.episodes_per_variation}"
+            )
+        if args.max_steps is not None and args.max_steps < 1:
+            raise EvaluationError(f"--max-steps must be >= 1, got {args.max_steps}")
+        if args.workers < 1:
+            raise EvaluationError(f"--workers must be >= 1, got {args.workers}")
+        if not args.policy_paths and not args.baseline:
+            raise EvaluationError("nothing to evaluate: pass --policy.path=<checkpoint> and/or --baseline expert|untrained")
+        record = args.rerun is not None
+        if record and args.rerun.suffix != ".rrd":
+            raise EvaluationError(f"--rerun must name an .rrd file, got {str(args.rerun)!r}")
+
+        agents: list[AgentSpec] = []
+        groups: dict[str, dict[int, str]] = {}
+        n_demo_frames = 4
+        for path in args.policy_paths:
+            checkpoint = resolve_checkpoint(path)
+            n_demo_frames = json.loads((checkpoint / "config.json").read_text()).get("n_demo_frames", 4)
+            spec = AgentSpec("policy", str(path), str(checkpoint), checkpoint_image_hw(checkpoint), record)
+            groups.setdefault(POLICY_GROUP, {})[len(agents)] = str(path)
+            agents.append(spec)
+        default_hw = args.image_size or (agents[0].image_hw if agents else (IMAGE_HEIGHT, IMAGE_WIDTH))
+        for baseline in dict.fromkeys(args.baseline):
+            groups[baseline] = {len(agents): baseline}
+            agents.append(AgentSpec(baseline, baseline, None, default_hw, record))
+
+        demo_source = DemoSourceSpec()
+        if args.demo_dataset is not None:
+            from mosaic_data.collection.schema import resolve_dataset
+
+            try:
+                root = resolve_dataset(args.demo_dataset)
+            except ValueError as error:
+                raise EvaluationError(str(error)) from None
+            for image_hw in {agent.image_hw for agent in agents if agent.needs_demo or record}:
+                source = DatasetDemoSource(root, image_hw)
+                for task, variations in tasks.items():
+                    source.check_covers(task, variations)
+            demo_source = DemoSourceSpec(dataset=str(root))
+
+        plan = cls(tasks, agents, groups, demo_source, args.episodes_per_variation, args.seed, n_demo_frames=n_demo_frames, max_steps=args.max_steps)
+        recorded_agents = {min(members) for members in groups.values()}
+        for agent_index in range(len(agents)):
+            for task, variations in tasks.items():
+                for variation in variations:
+                    for episode in range(args.episodes_per_variation):
+                        seed, demo_seed = episode_seeds(args.seed, variation, episode)
+                        plan.episodes.append(EpisodeSpec(
+                            agent_index, task, variation, episode, seed, demo_seed,
+                            record=record and agent_index in recorded_agents and episode < args.rerun_episodes,
+                        ))
+        return plan
+
+    def settings(self) -> dict[str, Any]:
+        return {
+            "tasks": self.tasks,
+            "agents": [agent.__dict__ | {"image_hw": list(agent.image_hw)} for agent in self.agents],
+            "episodes_per_variation": self.episodes_per_variation,
+            "seed": self.seed,
+            "seed_rule": "agent instance = seed + 100000 * variation + episode; demonstrator = seed + 100000 * "
+            "variation + 50000 + 10 * episode (+1, +2, ... if its expert fails)",
+            "demo_source": self.demo_source.dataset or f"fresh {self.demo_source.robot} expert demonstrations",
+            "agent_robot": "panda",
+            "max_steps": self.max_steps or "task horizon",
+        }
+
+
+def _tasks_and_variations(task: str, variations: list[int] | None) -> dict[str, list[int]]:
+    if task == "all":
+        if variations is not None:
+            raise EvaluationError("--variations applies to one task; drop it with --task all")
+        return {name: [v.index for v in TASKS[name].variations] for name in TASKS}
+    if task not in TASKS:
+        raise EvaluationError(f"unknown task {task!r}: choose one of {', '.join(TASKS)} or 'all'")
+    task_class = get_task_class(task)
+    count = len(task_class.variations)
+    if variations is None:
+        return {task: list(range(count))}
+    bad = [v for v in variations if not 0 <= v < count]
+    if bad or not variations:
+        raise EvaluationError(f"{task} has variations 0..{count - 1}; got {variations} (see `mosaic-data tasks --task {task}`)")
+    return {task: list(dict.fromkeys(variations))}
+

@@ -1,0 +1,157 @@
+"""Success tables of an evaluation, as the paper reports them: per variation and per task, mean +- std.
+
+An *agent* is one row family: a set of checkpoints (e.g. the same recipe trained with several seeds), the
+scripted expert, or the untrained policy. For each agent and variation the success rate is the mean over its
+episodes; the "+-" is the standard deviation over episodes (of the 0/1 outcomes) and, when the agent has
+several checkpoints, also over the checkpoints' own success rates. A task's rate is the mean over all its
+episodes (every variation has the same number), with the same two deviations.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mosaic_data.collection.metadata import write_json_atomically
+
+from .rollouts import EpisodeResult
+
+
+@dataclass
+class Cell:
+    """Success of one agent on one group of episodes (a variation, a task, or everything)."""
+
+    episodes: int
+    successes: int
+    mean: float
+    std_episodes: float
+    std_checkpoints: float | None
+    per_checkpoint: list[float]
+
+    def text(self) -> str:
+        """``"67.5 +- 4.1"`` in percent; the checkpoint deviation when there is one, else the episodes'."""
+        std = self.std_checkpoints if self.std_checkpoints is not None else self.std_episodes
+        return f"{100 * self.mean:.1f} +- {100 * std:.1f}"
+
+
+def _cell(results: list[EpisodeResult], checkpoints: dict[int, str]) -> Cell:
+    outcomes = np.array([r.success for r in results], dtype=float)
+    by_checkpoint: dict[int, list[bool]] = defaultdict(list)
+    for result in results:
+        by_checkpoint[result.agent_index].append(result.success)
+    per_checkpoint = [float(np.mean(by_checkpoint[index])) for index in checkpoints if index in by_checkpoint]
+    return Cell(
+        episodes=len(results),
+        successes=int(outcomes.sum()),
+        mean=float(outcomes.mean()),
+        std_episodes=float(outcomes.std()),
+        std_checkpoints=float(np.std(per_checkpoint)) if len(per_checkpoint) > 1 else None,
+        per_checkpoint=per_checkpoint,
+    )
+
+
+def summarize(results: list[EpisodeResult], agent_groups: dict[str, dict[int, str]]) -> dict[str, Any]:
+    """Tables keyed by agent name. ``agent_groups``: agent name -> {agent index: checkpoint label}."""
+    tables: dict[str, Any] = {}
+    for name, members in agent_groups.items():
+        mine = [r for r in results if r.agent_index in members]
+        per_variation, per_task = [], []
+        for task in dict.fromkeys(r.task for r in mine):
+            of_task = [r for r in mine if r.task == task]
+            for variation in sorted({r.variation for r in of_task}):
+                of_variation = [r for r in of_task if r.variation == variation]
+                per_variation.append(
+                    {"task": task, "variation": variation, "description": of_variation[0].description}
+                    | _cell(of_variation, members).__dict__
+                )
+            per_task.append({"task": task, "variations": len({r.variation for r in of_task})} | _cell(of_task, members).__dict__)
+        tables[name] = {
+            "checkpoints": list(members.values()),
+            "per_variation": per_variation,
+            "per_task": per_task,
+            "overall": _cell(mine, members).__dict__ if mine else None,
+        }
+    return tables
+
+
+def timing(results: list[EpisodeResult], wall_s: float, workers: int) -> dict[str, float]:
+    """Throughput figures: control steps per second overall and per worker, and the policy's share."""
+    steps = sum(r.steps for r in results)
+    rollout_s = sum(r.rollout_s for r in results)
+    act_s = sum(r.act_s for r in results)
+    return {
+        "wall_s": round(wall_s, 2),
+        "workers": workers,
+        "episodes": len(results),
+        "steps": steps,
+        "steps_per_s": round(steps / wall_s, 2) if wall_s > 0 else 0.0,
+        "steps_per_s_per_worker": round(steps / rollout_s, 2) if rollout_s > 0 else 0.0,
+        "act_ms_per_step": round(1000 * act_s / steps, 2) if steps else 0.0,
+        "demo_s_per_episode": round(sum(r.demo_s for r in results) / len(results), 2) if results else 0.0,
+    }
+
+
+def markdown(tables: dict[str, Any], settings: dict[str, Any]) -> str:
+    """One table per task level: rows = variations (then tasks), columns = agents, cells = success %."""
+    agents = list(tables)
+    header = "| | " + " | ".join(agents) + " |\n|---|" + "---|" * len(agents) + "\n"
+    lines = [f"# mosaic-eval: one-shot success (%), mean +- std ({settings['episodes_per_variation']} episodes per variation)\n"]
+    first = tables[agents[0]]
+    lines.append("## Per task\n\n" + header)
+    for row_index, row in enumerate(first["per_task"]):
+        cells = [tables[a]["per_task"][row_index] for a in agents]
+        lines.append(f"| {row['task']} | " + " | ".join(_cell_text(c) for c in cells) + " |\n")
+    overall = [tables[a]["overall"] for a in agents]
+    lines.append("| **all** | " + " | ".join(_cell_text(c) for c in overall) + " |\n")
+    lines.append("\n## Per variation\n\n" + header)
+    for row_index, row in enumerate(first["per_variation"]):
+        cells = [tables[a]["per_variation"][row_index] for a in agents]
+        lines.append(f"| {row['task']} {row['variation']}: {row['description']} | " + " | ".join(_cell_text(c) for c in cells) + " |\n")
+    lines.append(
+        "\n+- is the standard deviation over checkpoints when an agent has several, else over episodes. "
+        f"Seeds: base {settings['seed']}; demonstrations: {settings['demo_source']}.\n"
+    )
+    return "".join(lines)
+
+
+def _cell_text(cell: dict[str, Any] | None) -> str:
+    if cell is None:
+        return "-"
+    return Cell(**{k: cell[k] for k in Cell.__dataclass_fields__}).text()
+
+
+def print_table(tables: dict[str, Any]) -> str:
+    """The per-task (and, for one task, per-variation) table as plain text for the terminal."""
+    agents = list(tables)
+    first = tables[agents[0]]
+    rows = [("", *agents)]
+    if len(first["per_task"]) == 1:
+        for index, row in enumerate(first["per_variation"]):
+            rows.append((f"{row['task']} {row['variation']}", *(_cell_text(tables[a]["per_variation"][index]) for a in agents)))
+    for index, row in enumerate(first["per_task"]):
+        rows.append((f"{row['task']} (all)", *(_cell_text(tables[a]["per_task"][index]) for a in agents)))
+    if len(first["per_task"]) > 1:
+        rows.append(("all tasks", *(_cell_text(tables[a]["overall"]) for a in agents)))
+    widths = [max(len(str(row[i])) for row in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(str(cell).ljust(width) for cell, width in zip(row, widths)) for row in rows)
+
+
+def write_reports(path: Path, report: dict[str, Any]) -> tuple[Path, Path]:
+    """``path`` (JSON) and the same name with ``.md`` (Markdown), written atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomically(path, report)
+    markdown_path = path.with_suffix(".md")
+    temporary = markdown_path.with_suffix(".md.tmp")
+    temporary.write_text(markdown(report["tables"], report["settings"]))
+    temporary.replace(markdown_path)
+    return path, markdown_path
+
+
+def load_report(path: Path) -> dict[str, Any]:
+    return json.loads(Path(path).read_text())

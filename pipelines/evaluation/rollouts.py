@@ -1,0 +1,193 @@
+"""One evaluation episode: a demonstration of the variation, a fresh agent instance, a rollout to the horizon.
+
+Seeds (see :func:`episode_seeds`): episode ``e`` of ``variation`` puts the agent in instance
+``base + 100000 * variation + e`` and asks the demonstrator for instance ``base + 100000 * variation + 50000 +
+10 * e`` (the next seeds if its expert fails there), so the demonstration always shows another instance than
+the one the agent faces. Everything an episode does depends only on its seeds (torch's generator is re-seeded
+per episode), so results do not depend on the number of workers or on which worker runs an episode. The
+default base, 10^9, is far from the seeds `mosaic-data collect` uses for training data (base 0).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from mosaic_data.envs import MosaicGymEnv
+from mosaic_data.tasks import get_task_class
+
+from .agents import Agent, AgentSpec, build_agent
+from .demo_sources import DemoSourceSpec, build_demo_source
+
+EVAL_BASE_SEED = 1_000_000_000
+SEED_STRIDE_VARIATION = 100_000
+DEMO_SEED_OFFSET = 50_000
+DEMO_SEED_STRIDE = 10
+MAX_EPISODES_PER_VARIATION = DEMO_SEED_OFFSET // DEMO_SEED_STRIDE
+
+
+def episode_seeds(base_seed: int, variation: int, episode: int) -> tuple[int, int]:
+    """(agent instance seed, first demonstrator seed) of one evaluation episode."""
+    start = base_seed + SEED_STRIDE_VARIATION * variation
+    return start + episode, start + DEMO_SEED_OFFSET + DEMO_SEED_STRIDE * episode
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    agent_index: int
+    task: str
+    variation: int
+    episode: int
+    seed: int
+    demo_seed: int
+    record: bool = False
+
+
+@dataclass
+class EpisodeRecording:
+    """What the rerun recording shows of one episode (kept only for recorded episodes)."""
+
+    demo_video: np.ndarray  # (N, H, W, 3) uint8, the whole demonstration
+    demo_indices: list[int]  # frames of it the policy conditions on
+    frames: list[np.ndarray] = field(default_factory=list)  # agent camera, one per action
+    actions: list[np.ndarray] = field(default_factory=list)
+    attention: list[np.ndarray] = field(default_factory=list)  # per step (layers, h*w + demo tokens), head/query means
+    feature_hw: tuple[int, int] | None = None
+
+
+@dataclass
+class EpisodeResult:
+    agent_index: int
+    agent: str
+    task: str
+    variation: int
+    description: str
+    episode: int
+    seed: int
+    demo_seed: int | None
+    success: bool
+    steps: int
+    horizon: int
+    final_position: list[float]  # the gripper's grip site at the end (m), where the agent left off
+    rollout_s: float
+    act_s: float
+    demo_s: float
+    recording: EpisodeRecording | None = None
+
+    def summary(self) -> dict:
+        """JSON-ready fields (the recording left out)."""
+        return {name: getattr(self, name) for name in self.__dataclass_fields__ if name != "recording"}
+
+
+class RolloutWorker:
+    """Runs episodes for several agents in one process, keeping agents, environments and demo sources."""
+
+    def __init__(
+        self, agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, max_steps: int | None = None, max_envs: int = 4
+    ) -> None:
+        self.agent_specs = agent_specs
+        self.demo_spec = demo_spec
+        self.max_steps = max_steps
+        self._agents: dict[int, Agent] = {}
+        self._demo_sources: dict[tuple[int, int], object] = {}
+        self._envs: OrderedDict[tuple, MosaicGymEnv] = OrderedDict()
+        self._max_envs = max_envs
+
+    def run(self, spec: EpisodeSpec) -> EpisodeResult:
+        agent = self._agent(spec.agent_index)
+        agent_spec = agent.spec
+        record = spec.record
+        pick = _frame_picker(agent)
+        env = self._env(spec.task, spec.variation, agent_spec.image_hw, agent_spec.needs_camera or record)
+        torch.manual_seed(spec.seed)
+        start = time.perf_counter()
+        demo, demo_s = None, 0.0
+        if agent_spec.needs_demo or record:  # a recording shows the whole demonstration, so render all of it
+            source = self._demo_source(agent_spec.image_hw)
+            demo = source.demonstration(spec.task, spec.variation, spec.demo_seed, None if record else pick)
+            demo_s = time.perf_counter() - start
+        observation, info = env.reset(seed=spec.seed)
+        agent.start_episode(env, demo)
+        recording = None
+        if record:
+            recording = EpisodeRecording(demo.frames, pick(demo.length) if pick is not None else [])
+        act_s, steps = 0.0, 0
+        for _ in range(env.horizon):
+            tick = time.perf_counter()
+            step = agent.act(observation, env)
+            act_s += time.perf_counter() - tick
+            if recording is not None:
+                recording.frames.append(observation["pixels"]["agentview"])
+                recording.actions.append(step.action)
+                if step.attention is not None:
+                    recording.attention.append(np.stack([layer.mean(axis=(0, 1)) for layer in step.attention]))
+            observation, _, terminated, truncated, info = env.step(step.action)
+            steps += 1
+            if terminated or truncated:
+                break
+        if recording is not None and agent_spec.kind != "expert":
+            recording.feature_hw = tuple(agent.policy.model.feature_shape[1:])
+        return EpisodeResult(
+            agent_index=spec.agent_index,
+            agent=agent_spec.label,
+            task=spec.task,
+            variation=spec.variation,
+            description=env.task_description,
+            episode=spec.episode,
+            seed=spec.seed,
+            demo_seed=demo.seed if demo is not None else None,
+            success=bool(info["is_success"]),
+            steps=steps,
+            horizon=env.horizon,
+            final_position=[round(float(x), 6) for x in env.task_env.robot_state()[:3]],
+            rollout_s=time.perf_counter() - start,
+            act_s=act_s,
+            demo_s=demo_s,
+            recording=recording,
+        )
+
+    def _agent(self, index: int) -> Agent:
+        if index not in self._agents:
+            self._agents[index] = build_agent(self.agent_specs[index])
+        return self._agents[index]
+
+    def _demo_source(self, image_hw: tuple[int, int]):
+        if image_hw not in self._demo_sources:
+            self._demo_sources[image_hw] = build_demo_source(self.demo_spec, image_hw)
+        return self._demo_sources[image_hw]
+
+    def _env(self, task: str, variation: int, image_hw: tuple[int, int], camera: bool) -> MosaicGymEnv:
+        key = (task, variation, image_hw, camera)
+        if key in self._envs:
+            self._envs.move_to_end(key)
+            return self._envs[key]
+        if len(self._envs) >= self._max_envs:
+            _, oldest = self._envs.popitem(last=False)
+            oldest.close()
+        horizon = get_task_class(task).horizon_steps
+        env = MosaicGymEnv(
+            task, variation, robot="panda", image_height=image_hw[0], image_width=image_hw[1], observe_image=camera,
+            horizon=min(horizon, self.max_steps) if self.max_steps else horizon,
+        )
+        self._envs[key] = env
+        return env
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        for source in self._demo_sources.values():
+            source.close()
+
+
+def _frame_picker(agent: Agent):
+    """The demonstration frames a policy conditions on (first, last, middle-segment centres), None for the expert."""
+    if agent.spec.kind == "expert":
+        return None
+    from mosaic_policy.paired_sampling import demo_frame_indices
+
+    n_frames = agent.policy.config.n_demo_frames
+    return lambda length: demo_frame_indices(length, n_frames)

@@ -1,0 +1,73 @@
+"""Small MOSAIC checkpoints on disk, written as lerobot-train writes them (config, weights, processors)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+HEIGHT, WIDTH = 48, 88
+"""A small camera: the environments render at the checkpoint's size."""
+
+
+def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH) -> Path:
+    """An untrained two-layer MOSAIC at ``height`` x ``width`` with action statistics over the workspace."""
+    from lerobot.configs import FeatureType, PolicyFeature
+
+    from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
+    from mosaic_policy.modeling_mosaic import MosaicPolicy
+
+    config = MosaicConfig(
+        device="cpu",
+        input_features={
+            "observation.images.agentview": PolicyFeature(FeatureType.VISUAL, (3, height, width)),
+            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
+        },
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
+        n_attention_layers=2,
+        n_attention_heads=2,
+        embed_dim=32,
+        head_hidden_dim=32,
+        push_to_hub=False,
+    )
+    torch.manual_seed(0)
+    policy = MosaicPolicy(config)
+    from pipelines.evaluation.agents import workspace_action_stats
+
+    stats = workspace_action_stats() | {"observation.state": {"mean": torch.zeros(10), "std": torch.ones(10)}}
+    preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=stats)
+    for part in (policy, preprocessor, postprocessor):
+        part.save_pretrained(folder)
+    return folder
+
+
+def write_demo_dataset(root: Path, task: str, variations: list[int], height: int = HEIGHT, width: int = WIDTH,
+                       episodes: int = 2, length: int = 10) -> Path:
+    """A demonstrator dataset in the collection's schema with the suite's real variation descriptions."""
+    import numpy as np
+    from lerobot.datasets import LeRobotDataset
+
+    from mosaic_data.collection.schema import dataset_features
+    from mosaic_data.tasks import get_task_class
+
+    descriptions = {v.index: v.description for v in get_task_class(task).variations}
+    dataset = LeRobotDataset.create(
+        f"mosaic/{task}_sawyer", 20, dataset_features(height, width), root=root, use_videos=True, image_writer_threads=0
+    )
+    for rank in range(episodes):
+        for variation in variations:
+            for step in range(length):
+                image = np.full((height, width, 3), 30 + 40 * rank, dtype=np.uint8)
+                image[:, : 4 + step * 4, 0] = 220
+                dataset.add_frame({
+                    "observation.images.agentview": image,
+                    "observation.state": np.zeros(10, dtype=np.float32),
+                    "action": np.zeros(7, dtype=np.float32),
+                    "variation": np.array([variation], dtype=np.int64),
+                    "next.success": np.array([step == length - 1]),
+                    "next.done": np.array([step == length - 1]),
+                    "task": descriptions[variation],
+                })
+            dataset.save_episode()
+    dataset.finalize()
+    return root

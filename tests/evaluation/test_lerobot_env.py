@@ -1,0 +1,83 @@
+"""`--env.type=mosaic`: the demonstration travels through the environment into a MOSAIC policy, and the real
+`lerobot-eval` command runs on it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from eval_helpers import HEIGHT, WIDTH
+
+
+def _env_config(**overrides):
+    from pipelines.evaluation.lerobot_env import MosaicEnv
+
+    options = dict(task="door", variations=[1], observation_height=HEIGHT, observation_width=WIDTH, episode_length=5)
+    return MosaicEnv(**(options | overrides))
+
+
+def test_the_environment_delivers_the_demonstration_to_the_policy(tiny_checkpoint):
+    from lerobot.envs.utils import preprocess_observation
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from mosaic_policy.modeling_mosaic import MosaicPolicy
+
+    config = _env_config()
+    envs = config.create_envs(n_envs=1)
+    assert list(envs) == ["door"] and list(envs["door"]) == [1]
+    env = envs["door"][1]
+    try:
+        observation, info = env.reset(seed=[7])
+        demo = observation["demo"]
+        assert demo.shape == (1, 4, HEIGHT, WIDTH, 3) and demo.dtype == np.uint8
+        assert demo.std() > 5, "the demonstration frames are rendered, not blank"
+        assert not np.array_equal(demo[0, 0], observation["pixels"]["agentview"][0]), "another instance than the agent's"
+        assert env.call("_max_episode_steps")[0] == 5
+
+        policy = MosaicPolicy.from_pretrained(tiny_checkpoint).eval()
+        preprocessor, _ = make_pre_post_processors(policy.config, pretrained_path=str(tiny_checkpoint))
+        env_preprocessor, _ = config.get_env_processors()
+        batch = preprocess_observation(observation)
+        batch["task"] = list(env.call("task_description"))
+        batch = preprocessor(env_preprocessor(batch))
+        assert batch["observation.demo"].shape == (1, 4, 3, HEIGHT, WIDTH)
+        assert 0.0 <= batch["observation.demo"].min() and batch["observation.demo"].max() <= 1.0
+
+        policy.reset()
+        delivered = policy.select_action(batch)
+        policy.reset()
+        policy.set_demo(torch.from_numpy(demo[0]))
+        direct = policy.select_action({k: v for k, v in batch.items() if k != "observation.demo"})
+        torch.testing.assert_close(delivered, direct)
+    finally:
+        env.close()
+
+
+def test_bad_env_options_are_one_line_errors():
+    with pytest.raises(ValueError, match="unknown --env.task='laundry'"):
+        _env_config(task="laundry").create_envs(1)
+    with pytest.raises(ValueError, match="door has variations 0..3"):
+        _env_config(variations=[9]).create_envs(1)
+
+
+def test_lerobot_eval_runs_with_env_type_mosaic(tmp_path, tiny_checkpoint):
+    lerobot_eval = Path(sys.executable).parent / "lerobot-eval"
+    environment = os.environ | {"MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+    result = subprocess.run(
+        [
+            str(lerobot_eval), f"--policy.path={tiny_checkpoint}", "--env.type=mosaic", "--env.task=door",
+            "--env.variations=[0]", f"--env.observation_height={HEIGHT}", f"--env.observation_width={WIDTH}",
+            "--env.episode_length=4", "--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={tmp_path / 'eval'}",
+        ],
+        capture_output=True, text=True, env=environment, timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1

@@ -1,0 +1,144 @@
+"""mosaic-eval end to end on the real simulator: a tiny untrained checkpoint, the expert row, reports, rerun."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pipelines.evaluation.cli import main as mosaic_eval
+
+
+def _run(tmp_path, *args):
+    output = tmp_path / "results.json"
+    code = mosaic_eval([*args, "--output", str(output), "--quiet"])
+    return code, output
+
+
+def _rows_per_entity(path) -> dict[str, int]:
+    from rerun.experimental import RrdReader
+
+    reader = RrdReader(str(path))
+    assert reader.blueprints, "the recording should carry its default blueprint"
+    rows: dict[str, int] = {}
+    for line in str(reader.store().summary()).splitlines():
+        if line.startswith("/"):
+            entity = line.split()[0]
+            rows[entity] = rows.get(entity, 0) + int(line.split("rows=")[1].split()[0])
+    return rows
+
+
+def test_untrained_checkpoint_one_episode_reports_and_recording(tmp_path, tiny_checkpoint):
+    recording = tmp_path / "eval.rrd"
+    code, output = _run(
+        tmp_path, f"--policy.path={tiny_checkpoint}", "--task", "door", "--variations", "1",
+        "--episodes-per-variation", "1", "--workers", "1", "--max-steps", "12", "--rerun", str(recording),
+    )
+    assert code == 0
+    report = json.loads(output.read_text())
+    assert set(report) == {"settings", "tables", "timing", "episodes"}
+    table = report["tables"]["mosaic"]
+    (row,) = table["per_variation"]
+    assert row["task"] == "door" and row["variation"] == 1 and row["description"].startswith("pull the left door")
+    assert {"episodes", "successes", "mean", "std_episodes", "std_checkpoints", "per_checkpoint"} <= set(row)
+    assert row["episodes"] == 1 and table["per_task"][0]["task"] == "door" and table["overall"]["episodes"] == 1
+    (episode,) = report["episodes"]
+    assert episode["steps"] == 12 and episode["success"] is False  # untrained: no luck in 12 steps
+    assert episode["seed"] != episode["demo_seed"], "the demonstration must show another instance"
+    assert report["timing"]["steps"] == 12 and report["timing"]["act_ms_per_step"] > 0
+    markdown = output.with_suffix(".md").read_text()
+    assert "| door |" in markdown and "door 1: pull the left door open" in markdown
+
+    rows = _rows_per_entity(recording)
+    assert rows["/agent/camera"] == rows["/action/x"] == rows["/agent/camera/attention"] == 12
+    assert rows["/demo/video"] > 12, "the whole demonstration is in the recording"
+    assert {"/demo/used/0", "/demo/used/3/attention", "/attention_on_demo/layer_1", "/success", "/episode"} <= set(rows)
+
+
+def test_expert_row_reaches_its_target_on_door_with_two_workers(tmp_path):
+    code, output = _run(tmp_path, "--baseline", "expert", "--task", "door", "--episodes-per-variation", "2", "--workers", "2")
+    assert code == 0
+    report = json.loads(output.read_text())
+    overall = report["tables"]["expert"]["overall"]
+    assert overall["episodes"] == 8 and overall["mean"] >= 0.95
+    assert report["timing"]["workers"] == 2
+
+
+def test_results_do_not_depend_on_the_worker_count(tmp_path, tiny_checkpoint):
+    common = [f"--policy.path={tiny_checkpoint}", "--task", "door", "--variations", "0,3", "--episodes-per-variation", "1",
+              "--max-steps", "8", "--seed", "5"]
+    outcomes = []
+    for workers in ("1", "2"):
+        code, output = _run(tmp_path / workers, *common, "--workers", workers)
+        assert code == 0
+        episodes = json.loads(output.read_text())["episodes"]
+        outcomes.append([(e["variation"], e["seed"], e["demo_seed"], e["success"], e["final_position"]) for e in episodes])
+    assert outcomes[0] == outcomes[1]
+    finals = np.array([o[-1] for o in outcomes[0]])
+    assert np.all(np.isfinite(finals))
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--baseline", "expert", "--task", "laundry"], "unknown task 'laundry'"),
+        (["--baseline", "expert", "--task", "door", "--variations", "4"], "door has variations 0..3"),
+        (["--policy.path=/nonexistent/checkpoint", "--task", "door"], "does not exist"),
+        (["--task", "door"], "nothing to evaluate"),
+        (["--baseline", "expert", "--task", "door", "--episodes-per-variation", "0"], "--episodes-per-variation"),
+        (["--baseline", "expert", "--task", "all", "--variations", "0"], "applies to one task"),
+    ],
+)
+def test_bad_input_is_one_line(tmp_path, capsys, args, message):
+    code, output = _run(tmp_path, *args)
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and error.startswith("mosaic-eval: error:") and message in error and "\n" not in error
+    assert not output.exists()
+
+
+def test_a_checkpoint_of_another_policy_is_refused(tmp_path, capsys, tiny_checkpoint):
+    other = tmp_path / "act_checkpoint"
+    other.mkdir()
+    config = json.loads((tiny_checkpoint / "config.json").read_text()) | {"type": "act"}
+    (other / "config.json").write_text(json.dumps(config))
+    (other / "model.safetensors").write_bytes(b"")
+    code, _ = _run(tmp_path, f"--policy.path={other}", "--task", "door")
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and "holds a 'act' policy, not a MOSAIC policy" in error
+
+    empty = tmp_path / "not_a_checkpoint"
+    empty.mkdir()
+    code, _ = _run(tmp_path, f"--policy.path={empty}", "--task", "door")
+    assert code == 2 and "no config.json" in capsys.readouterr().err
+
+
+def test_a_lerobot_train_run_folder_resolves_to_its_last_checkpoint(tmp_path, tiny_checkpoint):
+    from pipelines.evaluation.agents import resolve_checkpoint
+
+    run = tmp_path / "run"
+    last = run / "checkpoints" / "last"
+    last.mkdir(parents=True)
+    (last / "pretrained_model").symlink_to(tiny_checkpoint)
+    assert resolve_checkpoint(run) == last / "pretrained_model"
+
+
+def test_demonstrations_from_a_dataset(tmp_path, capsys, tiny_checkpoint):
+    from eval_helpers import write_demo_dataset
+
+    root = write_demo_dataset(tmp_path / "door_sawyer", "door", [1])
+    common = [f"--policy.path={tiny_checkpoint}", "--task", "door", "--episodes-per-variation", "2", "--max-steps", "3",
+              "--workers", "1", "--demo-dataset", str(root)]
+    code, output = _run(tmp_path, *common, "--variations", "1")
+    assert code == 0
+    report = json.loads(output.read_text())
+    assert report["settings"]["demo_source"] == str(root)
+    assert [e["steps"] for e in report["episodes"]] == [3, 3]
+
+    code, _ = _run(tmp_path, *common, "--variations", "0,1")
+    error = capsys.readouterr().err
+    assert code == 2 and "has no episode of door variation 0" in error and "mosaic-data collect --task door" in error
+
+    small = write_demo_dataset(tmp_path / "small", "door", [1], height=32, width=56)
+    code, _ = _run(tmp_path, *common[:-1], str(small), "--variations", "1")
+    assert code == 2 and "collect the demonstrations at the policy's image size" in capsys.readouterr().err
