@@ -4,6 +4,8 @@
 #   2. a small cross-embodiment LeRobot dataset pair (2 episodes per variation per robot) -> outputs/datasets/mosaic/<task>_{panda,sawyer}
 #   3. validation of both datasets, and a rerun recording of an agent episode beside a demonstrator episode
 #   4. a few training steps of MOSAIC with lerobot-train on that pair -> outputs/train/<task>_mosaic
+#   5. one-shot evaluation of that checkpoint beside the expert row (1 episode per variation), with a rerun
+#      recording of the demonstrations, the policy's attention and its actions -> outputs/eval/<task>
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
 task="${1:-door}"
@@ -25,5 +27,9 @@ lerobot-train --policy.type=mosaic \
     --policy.push_to_hub=false --policy.device=cpu --policy.ema_total_steps=4 \
     --steps=4 --batch_size=2 --num_workers=0 --save_freq=4 --log_freq=1 \
     --output_dir="outputs/train/${task}_mosaic"
+
+mosaic-eval --policy.path="outputs/train/${task}_mosaic/checkpoints/last/pretrained_model" --baseline expert \
+    --task "$task" --episodes-per-variation 1 --rerun "outputs/eval/${task}/eval.rrd" --output "outputs/eval/${task}/results.json"
 echo "done: outputs/${task}_experts.mp4, datasets under $datasets, outputs/${task}_pair.rrd" \
-     "(view with: .venv/bin/rerun outputs/${task}_pair.rrd), checkpoint outputs/train/${task}_mosaic/checkpoints/last"
+     "(view with: .venv/bin/rerun outputs/${task}_pair.rrd), checkpoint outputs/train/${task}_mosaic/checkpoints/last," \
+     "evaluation outputs/eval/${task}/results.md and eval.rrd"

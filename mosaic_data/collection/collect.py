@@ -36,7 +36,8 @@ ALL_TASKS = "all"
 PLAN_NAME = "plan.json"
 LOCK_NAME = "lock"
 WORKER_THREAD_VARIABLES = ("LP_NUM_THREADS", "OMP_NUM_THREADS")
-"""One thread each for llvmpipe (the renderer) and OpenMP: the workers are the parallelism."""
+"""Threads of llvmpipe (the renderer) and OpenMP per worker: the cores divided among the workers, so that one
+worker renders with every core and N workers do not oversubscribe them."""
 
 
 @dataclass
@@ -313,7 +314,7 @@ def _run_workers(pending: list[ShardSpec], workers: int, on_episode, on_shard) -
     for _ in processes:
         shard_queue.put(None)
     try:
-        with _worker_environment():
+        with _worker_environment(len(processes)):
             for process in processes:
                 process.start()
         remaining = len(pending)
@@ -346,11 +347,12 @@ def _run_workers(pending: list[ShardSpec], workers: int, on_episode, on_shard) -
 
 
 @contextmanager
-def _worker_environment():
+def _worker_environment(workers: int):
     """Environment variables the spawned workers inherit (the parent's own are restored afterwards)."""
     saved = {name: os.environ.get(name) for name in (*WORKER_THREAD_VARIABLES, "SVT_LOG")}
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
     for name in WORKER_THREAD_VARIABLES:
-        os.environ.setdefault(name, "1")
+        os.environ.setdefault(name, str(threads))
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder's banner on every episode, errors only
     try:

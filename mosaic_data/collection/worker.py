@@ -87,6 +87,7 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
         root=temporary,
         robot_type=settings.robot,
         use_videos=True,
+        streaming_encoding=True,  # encode while frames are added: no PNG staging, half the writing time
     )
     records, frames, rollout_s, write_s = [], 0, 0.0, 0.0
     try:
