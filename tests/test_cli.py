@@ -40,15 +40,9 @@ def test_experts_writes_video_and_rerun(tmp_path):
     recording = tmp_path / "door.rrd"
     result = run_cli("experts", "--task", "door", "--robot", "sawyer", "--episodes", "1", "--variations", "0", "--rerun", str(recording))
     assert result.returncode == 0, result.stdout + result.stderr
-    from rerun.experimental import RrdReader
+    from rerun_helpers import rows_per_entity
 
-    reader = RrdReader(str(recording))
-    assert reader.blueprints, "the recording should carry its default blueprint"
-    rows_per_entity: dict[str, int] = {}
-    for line in str(reader.store().summary()).splitlines():
-        if line.startswith("/"):
-            entity = line.split()[0]
-            rows_per_entity[entity] = rows_per_entity.get(entity, 0) + int(line.split("rows=")[1].split()[0])
-    assert rows_per_entity["/camera"] > 10
-    assert rows_per_entity["/camera"] == rows_per_entity["/action/x"] == rows_per_entity["/success"]
-    assert {"/action/gripper", "/state/z", "/episode"} <= set(rows_per_entity)
+    rows = rows_per_entity(recording)
+    assert rows["/camera"] > 10
+    assert rows["/camera"] == rows["/action/x"] == rows["/success"]
+    assert {"/action/gripper", "/state/z", "/episode"} <= set(rows)

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.collection import CollectionError
-from mosaic_data.collection.merge import aggregate_into, is_complete_merge, merge_datasets
+from mosaic_data.collection.merge import aggregate_into, merge_datasets
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
 from mosaic_data.collection.plan import MAX_EPISODES, CollectionSettings, DatasetJob, ShardSpec
 from mosaic_data.collection.schema import (
@@ -30,6 +30,7 @@ from mosaic_data.collection.schema import (
     schema_mismatch,
 )
 from mosaic_data.collection.worker import TEMPORARY_MARK, ShardResult, read_shard_records, worker_main
+from mosaic_data.process_env import scoped_environment
 from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
 
 ALL_TASKS = "all"
@@ -346,23 +347,13 @@ def _run_workers(pending: list[ShardSpec], workers: int, on_episode, on_shard) -
         event_queue.cancel_join_thread()
 
 
-@contextmanager
 def _worker_environment(workers: int):
     """Environment variables the spawned workers inherit (the parent's own are restored afterwards)."""
-    saved = {name: os.environ.get(name) for name in (*WORKER_THREAD_VARIABLES, "SVT_LOG")}
-    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
-    for name in WORKER_THREAD_VARIABLES:
-        os.environ.setdefault(name, str(threads))
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder's banner on every episode, errors only
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
+    threads = str(max(1, (os.cpu_count() or 1) // max(1, workers)))
+    return scoped_environment(
+        default={name: threads for name in WORKER_THREAD_VARIABLES}
+        | {"MUJOCO_GL": "egl", "SVT_LOG": "1"}  # SVT_LOG: the AV1 encoder's banner on every episode, errors only
+    )
 
 
 def _outcome(job: DatasetJob, status: str) -> DatasetOutcome:

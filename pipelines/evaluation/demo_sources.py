@@ -3,7 +3,6 @@ paper's protocol), or an episode of a held-out demonstrator dataset (`mosaic-eva
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +13,7 @@ from mosaic_data.demos import Demonstration, record_demonstration
 from mosaic_data.tasks import get_task_class, make_task_env
 
 from .agents import CAMERA_KEY, EvaluationError
+from .env_cache import EnvCache
 
 DEMONSTRATOR = "sawyer"
 PickFrames = Callable[[int], Sequence[int]] | None
@@ -30,31 +30,20 @@ class DemoSourceSpec:
 class ExpertDemoSource:
     """A new demonstration per episode, by the demonstrator's scripted expert (environments kept per variation)."""
 
-    def __init__(self, robot: str = DEMONSTRATOR, image_hw: tuple[int, int] = (100, 180), max_envs: int = 4) -> None:
+    def __init__(self, robot: str = DEMONSTRATOR, image_hw: tuple[int, int] = (100, 180)) -> None:
         self.robot = robot
         self.image_hw = image_hw
-        self._envs: OrderedDict[tuple[str, int], object] = OrderedDict()
-        self._max_envs = max_envs
+        self._envs = EnvCache()
 
     def demonstration(self, task: str, variation: int, seed: int, pick_frames: PickFrames) -> Demonstration:
-        return record_demonstration(self._env(task, variation), seed, pick_frames)
-
-    def _env(self, task: str, variation: int):
-        key = (task, variation)
-        if key in self._envs:
-            self._envs.move_to_end(key)
-            return self._envs[key]
-        if len(self._envs) >= self._max_envs:
-            _, oldest = self._envs.popitem(last=False)
-            oldest.close()
-        env = make_task_env(task, variation, self.robot, image_height=self.image_hw[0], image_width=self.image_hw[1])
-        self._envs[key] = env
-        return env
+        height, width = self.image_hw
+        env = self._envs.get(
+            (task, variation), lambda: make_task_env(task, variation, self.robot, image_height=height, image_width=width)
+        )
+        return record_demonstration(env, seed, pick_frames)
 
     def close(self) -> None:
-        for env in self._envs.values():
-            env.close()
-        self._envs.clear()
+        self._envs.close()
 
 
 class DatasetDemoSource:

@@ -11,7 +11,6 @@ default base, 10^9, is far from the seeds `mosaic-data collect` uses for trainin
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +21,7 @@ from mosaic_data.tasks import get_task_class
 
 from .agents import Agent, AgentSpec, build_agent
 from .demo_sources import DemoSourceSpec, build_demo_source
+from .env_cache import EnvCache
 
 EVAL_BASE_SEED = 1_000_000_000
 SEED_STRIDE_VARIATION = 100_000
@@ -87,15 +87,14 @@ class RolloutWorker:
     """Runs episodes for several agents in one process, keeping agents, environments and demo sources."""
 
     def __init__(
-        self, agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, max_steps: int | None = None, max_envs: int = 4
+        self, agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, max_steps: int | None = None
     ) -> None:
         self.agent_specs = agent_specs
         self.demo_spec = demo_spec
         self.max_steps = max_steps
         self._agents: dict[int, Agent] = {}
         self._demo_sources: dict[tuple[int, int], object] = {}
-        self._envs: OrderedDict[tuple, MosaicGymEnv] = OrderedDict()
-        self._max_envs = max_envs
+        self._envs = EnvCache()
 
     def run(self, spec: EpisodeSpec) -> EpisodeResult:
         agent = self._agent(spec.agent_index)
@@ -161,24 +160,18 @@ class RolloutWorker:
         return self._demo_sources[image_hw]
 
     def _env(self, task: str, variation: int, image_hw: tuple[int, int], camera: bool) -> MosaicGymEnv:
-        key = (task, variation, image_hw, camera)
-        if key in self._envs:
-            self._envs.move_to_end(key)
-            return self._envs[key]
-        if len(self._envs) >= self._max_envs:
-            _, oldest = self._envs.popitem(last=False)
-            oldest.close()
         horizon = get_task_class(task).horizon_steps
-        env = MosaicGymEnv(
-            task, variation, robot="panda", image_height=image_hw[0], image_width=image_hw[1], observe_image=camera,
-            horizon=min(horizon, self.max_steps) if self.max_steps else horizon,
+        horizon = min(horizon, self.max_steps) if self.max_steps else horizon
+        return self._envs.get(
+            (task, variation, image_hw, camera),
+            lambda: MosaicGymEnv(
+                task, variation, robot="panda", image_height=image_hw[0], image_width=image_hw[1],
+                observe_image=camera, horizon=horizon,
+            ),
         )
-        self._envs[key] = env
-        return env
 
     def close(self) -> None:
-        for env in self._envs.values():
-            env.close()
+        self._envs.close()
         for source in self._demo_sources.values():
             source.close()
 

@@ -10,9 +10,9 @@ results identical between a run with 1 worker and one with 4.
 from __future__ import annotations
 
 import multiprocessing
-import os
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+
+from mosaic_data.process_env import scoped_environment
 
 from .agents import AgentSpec
 from .demo_sources import DemoSourceSpec
@@ -83,18 +83,6 @@ def _results(
         pool.join()
 
 
-@contextmanager
 def _single_threaded():
     """One thread per process for the renderer and BLAS (inherited by spawned workers), restored afterwards."""
-    saved = {name: os.environ.get(name) for name in (*THREAD_VARIABLES, "MUJOCO_GL")}
-    for name in THREAD_VARIABLES:
-        os.environ[name] = "1"
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
+    return scoped_environment(force={name: "1" for name in THREAD_VARIABLES}, default={"MUJOCO_GL": "egl"})

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from rerun_helpers import rows_per_entity
 
 from pipelines.evaluation.cli import main as mosaic_eval
 
@@ -14,19 +15,6 @@ def _run(tmp_path, *args):
     output = tmp_path / "results.json"
     code = mosaic_eval([*args, "--output", str(output), "--quiet"])
     return code, output
-
-
-def _rows_per_entity(path) -> dict[str, int]:
-    from rerun.experimental import RrdReader
-
-    reader = RrdReader(str(path))
-    assert reader.blueprints, "the recording should carry its default blueprint"
-    rows: dict[str, int] = {}
-    for line in str(reader.store().summary()).splitlines():
-        if line.startswith("/"):
-            entity = line.split()[0]
-            rows[entity] = rows.get(entity, 0) + int(line.split("rows=")[1].split()[0])
-    return rows
 
 
 def test_untrained_checkpoint_one_episode_reports_and_recording(tmp_path, tiny_checkpoint):
@@ -50,7 +38,7 @@ def test_untrained_checkpoint_one_episode_reports_and_recording(tmp_path, tiny_c
     markdown = output.with_suffix(".md").read_text()
     assert "| door |" in markdown and "door 1: pull the left door open" in markdown
 
-    rows = _rows_per_entity(recording)
+    rows = rows_per_entity(recording)
     assert rows["/agent/camera"] == rows["/action/x"] == rows["/agent/camera/attention"] == 12
     assert rows["/demo/video"] > 12, "the whole demonstration is in the recording"
     assert {"/demo/used/0", "/demo/used/3/attention", "/attention_on_demo/layer_1", "/success", "/episode"} <= set(rows)
