@@ -9,7 +9,11 @@ yaws that close along that axis, the expert takes the one near -90 degrees, wher
 
 The hand turns on the spot first (turning while reaching over the items flips the arms' wrists), then
 settles a few centimetres above the item until it is at rest (the Sawyer's tracking error is integrated out
-there), then goes straight down to the grasp point read at that moment. Carry and place targets are read from
+there), then goes slowly straight down to the grasp point read at that moment. The Sawyer drifts about a
+centimetre along x (the closing direction) when it starts to move down, twice the 5 mm the fingers clear the
+round can by on either side, so a fingertip would land on the can's rim and tip it over; until the fingertips
+are below the item's top the descent pauses whenever the hand is more than a few millimetres off the grasp point
+in x and y, and goes on once the tracking offset has pulled it back. Carry and place targets are read from
 the item's actual pose in the hand, so an item that slipped in the fingers still lands inside the bin. If the
 item is not in the hand after the lift, the expert starts over, at most ``MAX_RETRIES`` times.
 """
@@ -38,6 +42,14 @@ TURNED_RAD = 0.25
 SETTLED_M = 0.004
 SETTLED_SPEED_M = 0.002
 """Largest move of the grip site in one control step for the hand to count as at rest."""
+FINGERTIP_BELOW_M = 0.02
+"""The fingertips reach about this far below the grip site (plus a margin)."""
+DESCEND_ALIGNED_M = 0.003
+"""While the fingertips are above the item, the hand goes down only while this close to the grasp point in x and y."""
+DESCEND_STEP_M = 0.003
+"""Slow descent: the Sawyer's sideways drift grows with the speed it goes down at."""
+DESCEND_MAX_STEPS = 60
+DESCEND_TOLERANCE_M = 0.006
 
 
 HAND_YAW_CENTRE_RAD = {"panda": -np.pi / 2, "sawyer": -np.pi / 2}
@@ -111,6 +123,23 @@ class PickPlaceExpert(GraspingExpert):
             error = position - hover()
             return still and np.linalg.norm(error[:2]) < SETTLED_M and abs(error[2]) < 0.01
 
+        item_top_z = start[2] + high[2]
+        descend_goal = self.frozen("descend", grasp_point)
+
+        def descend_target() -> np.ndarray:
+            """Straight down to the grasp point, pausing while the fingertips are above the item and the hand is
+            off the grasp point: the Sawyer drifts sideways when it moves down, and the fingers clear the can by
+            only half a centimetre on either side."""
+            goal = descend_goal()
+            position = env.eef_pos
+            above = position[2] > item_top_z + FINGERTIP_BELOW_M
+            if above and np.linalg.norm(position[:2] - goal[:2]) > DESCEND_ALIGNED_M:
+                return np.array([goal[0], goal[1], max(self._command_pos[2], goal[2])])
+            return goal
+
+        def at_grasp_point() -> bool:
+            return bool(np.linalg.norm(env.eef_pos - descend_goal()) < DESCEND_TOLERANCE_M)
+
         def turned() -> bool:
             return bool((env.eef_rotation.inv() * self.orientation).magnitude() < TURNED_RAD)
 
@@ -121,7 +150,11 @@ class PickPlaceExpert(GraspingExpert):
             # Settle above the item: the Sawyer's lag changes on the way and must be integrated out before the
             # fingers go down on either side of the item.
             Phase("align", hover, GRIPPER_OPEN, tolerance_m=0.0, done=settled, min_steps=3, max_steps=40, max_step_m=0.01),
-            Phase("descend", self.frozen("descend", grasp_point), GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.005),
+            # The hold target of a paused descent is where the hand is: done only at the real grasp point.
+            Phase(
+                "descend", descend_target, GRIPPER_OPEN, tolerance_m=0.0, done=at_grasp_point,
+                max_steps=DESCEND_MAX_STEPS, max_step_m=DESCEND_STEP_M,
+            ),
             Phase("grasp", self.frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
             Phase("lift", self.frozen("lift", lambda: env.eef_pos + up * lift_dz), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=40, max_step_m=0.01),
             Phase("carry", lambda: over_bin(carry_height), GRIPPER_CLOSED, tolerance_m=0.015, max_steps=60, max_step_m=0.02),
