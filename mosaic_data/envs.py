@@ -66,6 +66,7 @@ class MosaicGymEnv(gym.Env):
         self.observe_image = observe_image
         self.horizon = self.task_env.horizon
         self._max_episode_steps = self.horizon  # what LeRobot's evaluation loop reads as the episode length
+        self._frame: np.ndarray | None = None  # the current state's camera frame, once rendered
         observation = {"agent_pos": spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32)}
         if observe_image:
             observation["pixels"] = spaces.Dict(
@@ -107,9 +108,12 @@ class MosaicGymEnv(gym.Env):
         return self._observation(), float(success), success, truncated, self._info(success)
 
     def render(self) -> np.ndarray | None:
+        """The camera frame of the current state (the observation's own frame when it has one: no second render)."""
         if self.render_mode is None:
             return None
-        return self.task_env.render_agentview()
+        if self._frame is None:
+            self._frame = self.task_env.render_agentview()
+        return self._frame
 
     def close(self) -> None:
         self.task_env.close()
@@ -117,8 +121,9 @@ class MosaicGymEnv(gym.Env):
     # ------------------------------------------------------------------ helpers
     def _observation(self) -> dict[str, Any]:
         observation: dict[str, Any] = {"agent_pos": self.task_env.robot_state()}
-        if self.observe_image:
-            observation["pixels"] = {"agentview": self.task_env.render_agentview()}
+        self._frame = self.task_env.render_agentview() if self.observe_image else None
+        if self._frame is not None:
+            observation["pixels"] = {"agentview": self._frame}
         return observation
 
     def _info(self, success: bool) -> dict[str, Any]:

@@ -144,6 +144,29 @@ def test_gymnasium_api_matches_the_issue_example():
         env.close()
 
 
+def test_render_returns_the_observation_frame_without_rendering_again():
+    """LeRobot's evaluation calls render() after every step for its videos: that must not cost a second render."""
+    env = gymnasium.make("mosaic/Door-v0", image_height=48, image_width=64)
+    try:
+        obs, _ = env.reset(seed=1)
+        renders = []
+        task_env = env.unwrapped.task_env
+        original = task_env.render_agentview
+        task_env.render_agentview = lambda: renders.append(1) or original()
+        obs, *_ = env.step(make_expert(env).act(obs, env))
+        assert len(renders) == 1
+        np.testing.assert_array_equal(env.render(), obs["pixels"]["agentview"])
+        assert len(renders) == 1
+    finally:
+        env.close()
+    blind = gymnasium.make("mosaic/Door-v0", image_height=48, image_width=64, observe_image=False)
+    try:
+        blind.reset(seed=1)
+        assert blind.render().shape == (48, 64, 3)  # rendered on request when observations carry no image
+    finally:
+        blind.close()
+
+
 def test_every_task_is_registered_with_gymnasium():
     for task in TASKS:
         assert gym_id(task) in gymnasium.registry
