@@ -19,7 +19,7 @@ class MosaicConfig(PreTrainedConfig):
 
     The defaults are the paper's single-task settings. Options a user most likely changes:
     `demo_repo_id` (the demonstrator dataset paired with `--dataset.repo_id`), `n_attention_layers`
-    (2 single-task, 3 multi-task), `contrastive` (ablations) and `ema_total_steps` (set it to `--steps`).
+    (2 single-task, 3 multi-task) and `contrastive` (ablations).
 
     Every training sample holds `train_obs_frames` consecutive agent frames and their actions; it is
     paired with `n_demo_frames` frames of one demonstrator episode of the same variation (same LeRobot
@@ -59,7 +59,8 @@ class MosaicConfig(PreTrainedConfig):
         - contrastive_dim, contrastive_hidden_dim: Projector / predictor output and hidden widths.
         - contrastive_temperature: InfoNCE temperature applied to the bilinear logits of normalised vectors.
         - ema_momentum: Initial momentum of the EMA target encoder (rises to 1 with a cosine schedule).
-        - ema_total_steps: Steps over which the momentum reaches 1; set it to lerobot-train's `--steps`.
+        - ema_total_steps: Steps over which the momentum reaches 1; by default lerobot-train's `--steps` (read
+            from its command line when the policy is built for training, as LeRobot's own parser does for paths).
         - augment: Apply the training augmentations (never used at inference).
         - crop_scale_min: Smallest area fraction kept by the random resized crop.
         - translate_fraction: Largest random translation, as a fraction of width / height.
@@ -144,8 +145,8 @@ class MosaicConfig(PreTrainedConfig):
     contrastive_temperature: float = 0.1
     # Initial EMA momentum of the target encoder; rises to 1 with a cosine schedule.
     ema_momentum: float = 0.996
-    # Steps over which the EMA momentum reaches 1 (set to lerobot-train's --steps).
-    ema_total_steps: int = 100_000
+    # Steps over which the EMA momentum reaches 1 (default: lerobot-train's --steps).
+    ema_total_steps: int | None = None
 
     # Training augmentations (translate/crop, colour jitter, Gaussian blur); never at inference.
     augment: bool = True

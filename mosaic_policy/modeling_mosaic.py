@@ -135,6 +135,21 @@ def _task_of_variation() -> dict[str, str]:
     return {variation.description: name for name, task in TASKS.items() for variation in task.variations}
 
 
+def _training_steps() -> int:
+    """lerobot-train's ``--steps`` from the command line (LeRobot's parser helper), else its default 100000.
+
+    The momentum schedule of the EMA target must end with training, and a policy is not told the run's length;
+    outside lerobot-train (no ``--steps`` argument) the default applies. The value is saved in config.json.
+    """
+    from lerobot.configs import parser
+
+    steps = parser.parse_arg("steps")
+    try:
+        return max(1, int(steps)) if steps is not None else 100_000
+    except ValueError:
+        return 100_000
+
+
 def _pooled(features: Tensor) -> Tensor:
     """(B, C, T, h, w) -> (B, T, C) spatial means."""
     return features.mean(dim=(3, 4)).transpose(1, 2)
@@ -181,6 +196,8 @@ class MosaicPolicy(PreTrainedPolicy):
         self.target_attention = make_target(self.model.attention) if config.contrastive_after else None
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
 
+        if config.ema_total_steps is None:
+            config.ema_total_steps = _training_steps()
         self.demo_sampler: PairedDemoSampler | None = None
         if dataset_meta is not None and config.demo_repo_id is not None:
             self.demo_sampler = PairedDemoSampler(

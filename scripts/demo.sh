@@ -24,7 +24,7 @@ rm -rf "outputs/train/${task}_mosaic"
 lerobot-train --policy.type=mosaic \
     --dataset.repo_id="mosaic/${task}_panda" --dataset.root="$datasets/mosaic/${task}_panda" \
     --policy.demo_repo_id="mosaic/${task}_sawyer" --policy.demo_root="$datasets/mosaic/${task}_sawyer" \
-    --policy.push_to_hub=false --policy.device=cpu --policy.ema_total_steps=4 \
+    --policy.push_to_hub=false --policy.device=cpu \
     --steps=4 --batch_size=2 --num_workers=0 --save_freq=4 --log_freq=1 \
     --output_dir="outputs/train/${task}_mosaic"
 

@@ -52,7 +52,8 @@ def run_episodes(
             on_result(result)
         result.recording = None  # logged by on_result; do not keep frames of the whole evaluation in memory
         results.append(result)
-    return sorted(results, key=lambda r: (r.agent_index, r.task, r.variation, r.episode))
+    order = {(s.agent_index, s.task, s.variation, s.episode): position for position, s in enumerate(specs)}
+    return sorted(results, key=lambda r: order[(r.agent_index, r.task, r.variation, r.episode)])
 
 
 def _results(

@@ -57,7 +57,6 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
             "--save_freq=2",
             "--log_freq=1",
             f"--output_dir={output}",
-            "--policy.ema_total_steps=2",
             *SMALL,
         ],
         cwd=tmp_path,
@@ -75,6 +74,7 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     assert saved.keys() == state.keys()
     assert all(torch.equal(saved[k], state[k]) for k in saved)
     assert int(policy.ema_step) == 2  # update() ran after each optimizer step
+    assert policy.config.ema_total_steps == 2  # the momentum schedule follows --steps without a flag
 
     # The saved processors normalise with the dataset stats and unnormalise the action.
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
