@@ -9,6 +9,7 @@ well down the peg, and drops to the peg's base.
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
@@ -18,9 +19,20 @@ APPROACH_HEIGHT_M = 0.10
 """Above the handle, where the fast approach ends."""
 HOVER_HEIGHT_M = 0.04
 """Above the handle, where the hand settles before the slow descent."""
+GRASP_OUT_M = 0.008
+"""The fingers close this far out along the handle from its centre, towards its free end (the handle reaches
+0.025 m out from its centre). The ring is wider (4.5 cm) than the handle (3.2 cm) and ends only 6 mm inwards of
+the handle's centre; the Panda's finger pads are 16 mm wide, so pads centred on the handle's centre reach over
+the ring's outer corners and the fingers stop on those corners instead of squeezing the handle's flat faces:
+a grip on two edges that the nut can twist out of when the hand starts moving down."""
 GRASP_ABOVE_HANDLE_M = 0.006
-"""The grip site stays this far above the handle's centre: the fingertips reach about 1.5 cm below the site, and
-fingertips dragging on the table would not close."""
+"""The grip site stays at least this far above the handle's centre, so the fingers overlap most of the handle's
+2 cm thickness (the Panda's pads start only about 5 mm below the site) ..."""
+FINGERTIP_CLEARANCE_M = 0.006
+"""... and high enough that the lowest point of the fingers stays this far above the table: fingertips dragging on
+the table do not close. The Sawyer's fingertips reach 1.4 cm below the site (the Panda's fingers 0.9 cm); at the
+Panda's height they touched the table, stayed open for the whole closing phase and only closed as the lift began,
+on the top few millimetres of the handle: a grip the nut slipped out of in a fast carry."""
 CARRY_CLEARANCE_M = 0.05
 """Height of the nut's bottom above the peg's top while it is carried."""
 THREADED_DEPTH_M = 0.06
@@ -56,6 +68,27 @@ class NutAssemblyExpert(GraspingExpert):
         lifted = self.env.nut_position(nut)[2] - NUT_HALF_THICKNESS_M - self.env.table_offset[2]
         return bool(lifted > LIFTED_M and not self.env.is_released(nut))
 
+    def finger_reach(self) -> float:
+        """How far the gripper's collision geometry (fingertips) reaches beyond the grip site along the hand's
+        pointing axis, from the model (a property of the gripper, whatever its pose or opening)."""
+        model, data = self.env.sim.model, self.env.sim.data
+        site, pointing = self.env.eef_pos, self.env.eef_rotation.apply([0.0, 0.0, 1.0])
+        reach = 0.0
+        for name in self.env.robot.gripper["right"].contact_geoms:
+            geom = model.geom_name2id(name)
+            rotation, centre = data.geom_xmat[geom].reshape(3, 3), data.geom_xpos[geom]
+            if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
+                mesh = model.geom_dataid[geom]
+                first, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+                points = model.mesh_vert[first : first + count] @ rotation.T + centre
+                furthest = float(np.max((points - site) @ pointing))
+            elif model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_BOX:
+                furthest = float((centre - site) @ pointing + np.abs(rotation.T @ pointing) @ model.geom_size[geom])
+            else:
+                furthest = float((centre - site) @ pointing + model.geom_rbound[geom])
+            reach = max(reach, furthest)
+        return reach
+
     def phases(self) -> list[Phase]:
         env = self.env
         nut, peg = self.variation.params["nut"], self.variation.params["peg"]
@@ -63,11 +96,16 @@ class NutAssemblyExpert(GraspingExpert):
         # across the handle when yaw is the nut's yaw (mod pi).
         nut_yaw = env.nut_rotation(nut).as_euler("xyz")[2]
         self.orientation = top_down(_fold_yaw(nut_yaw))
-        grasp_z = env.nut_handle_position(nut)[2] + GRASP_ABOVE_HANDLE_M
+        grasp_z = max(
+            env.nut_handle_position(nut)[2] + GRASP_ABOVE_HANDLE_M,
+            env.table_offset[2] + self.finger_reach() + FINGERTIP_CLEARANCE_M,
+        )
 
         def grasp() -> np.ndarray:
-            """Over the handle's current centre (the fingers may nudge the nut), at the grasp height."""
-            return np.append(env.nut_handle_position(nut)[:2], grasp_z)
+            """Over the handle's grasp point now (the fingers may nudge the nut), at the grasp height."""
+            outwards = env.nut_rotation(nut).apply([1.0, 0.0, 0.0])[:2]
+            outwards = outwards / max(float(np.linalg.norm(outwards)), 1e-6)
+            return np.append(env.nut_handle_position(nut)[:2] + GRASP_OUT_M * outwards, grasp_z)
 
         def over_handle(height: float):
             return lambda: grasp() + np.array([0.0, 0.0, height])
