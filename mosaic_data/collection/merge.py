@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_sidecar
-from mosaic_data.collection.schema import is_lerobot_dataset, repo_id_of
+from mosaic_data.collection.schema import repo_id_of
 
 
 def aggregate_into(sources: list[tuple[str, Path]], repo_id: str, root: Path, sidecar: dict[str, Any]) -> None:
@@ -82,11 +82,6 @@ def merge_datasets(source_roots: list[Path], repo_id: str, root: Path) -> dict[s
     except ValueError as error:  # LeRobot's compatibility checks print whole feature dicts: keep one line
         raise ValueError(f"LeRobot cannot aggregate these datasets: {str(error).splitlines()[0][:300]}") from None
     return merged_sidecar
-
-
-def is_complete_merge(root: Path, sources: list[dict[str, Any]]) -> bool:
-    sidecar = read_sidecar(root) if is_lerobot_dataset(root) else None
-    return sidecar is not None and sidecar.get("sources") == sources
 
 
 class _quiet_lerobot_progress:

@@ -98,9 +98,8 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return candidate
 
 
-def checkpoint_image_hw(path: Path) -> tuple[int, int]:
-    """(H, W) of the camera a checkpoint was trained on (from its config.json)."""
-    config = json.loads((path / "config.json").read_text())
+def checkpoint_image_hw(path: Path, config: dict[str, Any]) -> tuple[int, int]:
+    """(H, W) of the camera a checkpoint at ``path`` was trained on, from its config.json content."""
     features = config.get("input_features", {})
     camera = features.get(CAMERA_KEY) or next(
         (feature for feature in features.values() if feature.get("type") == "VISUAL"), None
@@ -178,10 +177,6 @@ class PolicyAgent:
         policy = MosaicPolicy(config)
         preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=workspace_action_stats())
         return cls(spec, policy, preprocessor, postprocessor)
-
-    @property
-    def image_hw(self) -> tuple[int, int]:
-        return self.policy.image_hw
 
     def start_episode(self, env: MosaicGymEnv, demo: Demonstration | None) -> None:
         if demo is None:

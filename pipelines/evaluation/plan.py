@@ -55,8 +55,9 @@ class EvaluationPlan:
         n_demo_frames = 4
         for path in args.policy_paths:
             checkpoint = resolve_checkpoint(path)
-            n_demo_frames = json.loads((checkpoint / "config.json").read_text()).get("n_demo_frames", 4)
-            spec = AgentSpec("policy", str(path), str(checkpoint), checkpoint_image_hw(checkpoint), record)
+            config = json.loads((checkpoint / "config.json").read_text())
+            n_demo_frames = config.get("n_demo_frames", 4)
+            spec = AgentSpec("policy", str(path), str(checkpoint), checkpoint_image_hw(checkpoint, config), record)
             groups.setdefault(POLICY_GROUP, {})[len(agents)] = str(path)
             agents.append(spec)
         default_hw = args.image_size or (agents[0].image_hw if agents else (IMAGE_HEIGHT, IMAGE_WIDTH))

@@ -9,7 +9,6 @@ episodes (every variation has the same number), with the same two deviations.
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,11 +31,6 @@ class Cell:
     std_episodes: float
     std_checkpoints: float | None
     per_checkpoint: list[float]
-
-    def text(self) -> str:
-        """``"67.5 +- 4.1"`` in percent; the checkpoint deviation when there is one, else the episodes'."""
-        std = self.std_checkpoints if self.std_checkpoints is not None else self.std_episodes
-        return f"{100 * self.mean:.1f} +- {100 * std:.1f}"
 
 
 def _cell(results: list[EpisodeResult], checkpoints: dict[int, str]) -> Cell:
@@ -120,9 +114,11 @@ def markdown(tables: dict[str, Any], settings: dict[str, Any]) -> str:
 
 
 def _cell_text(cell: dict[str, Any] | None) -> str:
+    """``"67.5 +- 4.1"`` in percent; the checkpoint deviation when there is one, else the episodes'."""
     if cell is None:
         return "-"
-    return Cell(**{k: cell[k] for k in Cell.__dataclass_fields__}).text()
+    std = cell["std_checkpoints"] if cell["std_checkpoints"] is not None else cell["std_episodes"]
+    return f"{100 * cell['mean']:.1f} +- {100 * std:.1f}"
 
 
 def print_table(tables: dict[str, Any]) -> str:
@@ -152,6 +148,3 @@ def write_reports(path: Path, report: dict[str, Any]) -> tuple[Path, Path]:
     temporary.replace(markdown_path)
     return path, markdown_path
 
-
-def load_report(path: Path) -> dict[str, Any]:
-    return json.loads(Path(path).read_text())
