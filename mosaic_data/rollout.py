@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Container, Iterator
+from collections.abc import Callable, Container, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +41,7 @@ def run_expert_episode(
     expert_variation: int | None = None,
     record_final_frame: bool = True,
     frame_steps: Container[int] | None = None,
+    on_step: Callable[[Episode], None] | None = None,
 ) -> Episode:
     """Reset ``env`` to ``seed`` and let the expert act until success or the horizon.
 
@@ -48,6 +49,8 @@ def run_expert_episode(
     With ``record_final_frame`` the frame after the last action is recorded too (one frame more than
     actions); datasets pair every frame with its action and leave it out. ``frame_steps`` restricts the
     recorded frames to those steps (a replay that needs only a few frames of a known episode).
+    ``on_step(episode)`` is called after every step, once its frame, state, action and success are in
+    ``episode`` (a writer can encode the frame while the simulation goes on).
     """
     env.reset_to_seed(seed)
     expert = make_expert(env, expert_variation)
@@ -61,8 +64,10 @@ def run_expert_episode(
         env.step(action)
         episode.length += 1
         episode.successes.append(env.check_success())
-        if episode.successes[-1]:
-            episode.success = True
+        episode.success = episode.successes[-1]
+        if on_step is not None:
+            on_step(episode)
+        if episode.success:
             break
     if record_frames and record_final_frame and (frame_steps is None or episode.length in frame_steps):
         episode.frames.append(env.render_agentview())

@@ -9,10 +9,12 @@ write the shards; merge each dataset's shards with LeRobot's aggregation as soon
 from __future__ import annotations
 
 import fcntl
+import importlib
 import multiprocessing
 import os
 import queue
 import shutil
+import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -223,6 +225,9 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
                 if remaining_shards[job.repo_id] == 0:
                     _finish_job(job)
             if pending:
+                # LeRobot's aggregation (torch, datasets) takes seconds to import: do it while the workers
+                # collect, not after the last shard.
+                threading.Thread(target=importlib.import_module, args=("lerobot.datasets.aggregate",), daemon=True).start()
                 _run_workers(pending, request.workers, on_episode, on_shard)
     report.datasets += [_outcome(job, "collected") for job in to_collect]
     for robot, root in merged:

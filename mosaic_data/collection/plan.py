@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.collection.schema import FPS, dataset_root, repo_id_for
+from mosaic_data.tasks.render_meshes import VISUAL_FACE_BUDGET
 
 EPISODES_PER_SHARD = 10
 """Episode slots per shard: about a minute of work per worker, the most an interruption can lose."""
@@ -43,6 +44,8 @@ class CollectionSettings:
     base_seed: int
     image_height: int
     image_width: int
+    visual_face_budget: int = VISUAL_FACE_BUDGET
+    """The camera's robot meshes (``mosaic_data.tasks.render_meshes``): part of what the frames look like."""
     max_attempts: int = MAX_ATTEMPTS
     episodes_per_shard: int = EPISODES_PER_SHARD
     fps: int = FPS

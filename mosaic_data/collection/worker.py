@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from mosaic_data.collection.plan import ShardSpec, episode_seed
+from mosaic_data.collection.quiet import quiet_dataset_writing
 from mosaic_data.collection.schema import CAMERA_KEY, FPS, dataset_features, repo_id_for
 
 SHARD_RECORD_NAME = "mosaic_shard.json"
@@ -50,13 +51,16 @@ class EnvironmentCache:
         self._key: tuple | None = None
         self._env = None
 
-    def get(self, task: str, variation: int, robot: str, image_height: int, image_width: int):
+    def get(self, settings, variation: int):
         from mosaic_data.tasks import make_task_env
 
-        key = (task, variation, robot, image_height, image_width)
+        key = (settings.task, variation, settings.robot, settings.image_height, settings.image_width, settings.visual_face_budget)
         if key != self._key:
             self.close()
-            self._env = make_task_env(task, variation, robot, image_height=image_height, image_width=image_width)
+            self._env = make_task_env(
+                settings.task, variation, settings.robot, image_height=settings.image_height,
+                image_width=settings.image_width, visual_face_budget=settings.visual_face_budget,
+            )
             self._key = key
         return self._env
 
@@ -79,7 +83,7 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
     if temporary.exists():
         shutil.rmtree(temporary)
     temporary.parent.mkdir(parents=True, exist_ok=True)
-    env = environments.get(settings.task, spec.variation, settings.robot, settings.image_height, settings.image_width)
+    env = environments.get(settings, spec.variation)
     dataset = LeRobotDataset.create(
         repo_id,
         fps=FPS,
@@ -90,16 +94,20 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
         streaming_encoding=True,  # encode while frames are added: no PNG staging, half the writing time
     )
     records, frames, rollout_s, write_s = [], 0, 0.0, 0.0
+    writer = _LiveEpisodeWriter(dataset, env.horizon)
     try:
         for slot in range(spec.first_slot, spec.end_slot):
             failed_seeds = []
             for attempt in range(settings.max_attempts):
                 seed = episode_seed(settings.base_seed, spec.variation, slot, attempt)
                 started = time.perf_counter()
-                episode = run_expert_episode(env, seed, record_frames=True, record_final_frame=False)
-                rollout_s += time.perf_counter() - started
+                writer.seconds = 0.0
+                episode = run_expert_episode(env, seed, record_frames=True, record_final_frame=False, on_step=writer.add_step)
+                write_s += writer.seconds
+                rollout_s += time.perf_counter() - started - writer.seconds
                 if episode.success:
                     break
+                dataset.clear_episode_buffer()  # also cancels the episode's video encoding
                 failed_seeds.append(seed)
             else:
                 raise ExpertGaveUp(
@@ -108,7 +116,7 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
                     f"{failed_seeds[-1]}): fix the expert or leave this variation out with --variations"
                 )
             started = time.perf_counter()
-            _write_episode(dataset, episode)
+            dataset.save_episode()
             write_s += time.perf_counter() - started
             frames += episode.length
             records.append({
@@ -137,19 +145,30 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
     return ShardResult(spec.name, repo_id, records, frames, rollout_s, write_s, peak_rss_mb)
 
 
-def _write_episode(dataset, episode) -> None:
-    last = episode.length - 1
-    for step in range(episode.length):
-        dataset.add_frame({
+class _LiveEpisodeWriter:
+    """Adds each step to the LeRobot episode buffer as the expert takes it, so that the streaming video
+    encoder works on the frames while the simulation goes on (instead of after the episode); a failed attempt
+    is dropped with ``clear_episode_buffer``. ``seconds`` is the time spent writing, for the report."""
+
+    def __init__(self, dataset, horizon: int) -> None:
+        self.dataset = dataset
+        self.horizon = horizon
+        self.seconds = 0.0
+
+    def add_step(self, episode) -> None:
+        started = time.perf_counter()
+        step = episode.length - 1
+        self.dataset.add_frame({
             CAMERA_KEY: episode.frames[step],
             "observation.state": episode.states[step],
             "action": episode.actions[step],
             "variation": np.array([episode.variation], dtype=np.int64),
             "next.success": np.array([episode.successes[step]], dtype=bool),
-            "next.done": np.array([step == last], dtype=bool),
+            "next.done": np.array([episode.success or episode.length >= self.horizon], dtype=bool),
             "task": episode.description,
         })
-    dataset.save_episode()
+        episode.frames[step] = None  # encoded: the episode need not keep it
+        self.seconds += time.perf_counter() - started
 
 
 def read_shard_records(shard_root: Path) -> list[dict[str, Any]]:
@@ -164,6 +183,7 @@ def worker_main(worker_index: int, parent_pid: int, shard_queue, event_queue) ->
     _die_with_parent(parent_pid)
     # Ctrl-C reaches the whole process group; the parent decides what happens and stops the workers itself.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_dataset_writing()
     environments = EnvironmentCache()
     try:
         while (spec := shard_queue.get()) is not None:

@@ -2,12 +2,15 @@
 
 Prints figures (it asserts nothing). All numbers come from this run on this machine:
 
-* bare: the task env stepping with the expert and rendering every frame, no writing (one process);
+* bare: the task env stepping with the expert and rendering every frame, no writing: one process rendering
+  with every core (what one worker gets), and two processes at once with one render thread each (what two
+  workers get: the most they could reach without writing anything);
 * collect, 1 and 2 workers: the real pipeline (expert, retries, LeRobot writing, AV1 encoding, shard merge),
-  frames/s over the whole command including worker start-up and the final merge;
+  frames/s over the whole command including worker start-up and the final merge, and in steady state
+  (rollout + writing time inside the workers);
 * peak resident memory of a worker.
 
-Usage: ``MUJOCO_GL=egl python pipelines/bench/collect_bench.py --task door --episodes 4``
+Usage: ``MUJOCO_GL=egl python pipelines/bench/collect_bench.py --task door --variations 0,1,2,3 --episodes 8``
 """
 
 from __future__ import annotations
@@ -42,6 +45,28 @@ def bare_rate(task: str, robot: str, variations: list[int], episodes: int) -> tu
     return frames / seconds, frames
 
 
+def _bare_rate_in_child(task: str, robot: str, variations: list[int], episodes: int, results) -> None:
+    results.put(bare_rate(task, robot, variations, episodes))
+
+
+def parallel_bare_rate(task: str, robot: str, variations: list[int], episodes: int, processes: int = 2) -> float:
+    """Total frames/s of ``processes`` bare loops at once, one render thread each (as collect's workers)."""
+    import multiprocessing
+
+    from mosaic_data.process_env import scoped_environment
+
+    context = multiprocessing.get_context("spawn")
+    results = context.Queue()
+    with scoped_environment(force={"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}):
+        children = [context.Process(target=_bare_rate_in_child, args=(task, robot, variations, episodes, results)) for _ in range(processes)]
+        for child in children:
+            child.start()
+    rates = [results.get()[0] for _ in children]
+    for child in children:
+        child.join()
+    return sum(rates)
+
+
 def collect_rate(task: str, robot: str, variations: list[int], episodes: int, workers: int):
     from mosaic_data.collection.collect import CollectRequest, collect
 
@@ -67,7 +92,9 @@ def main() -> None:
     print(f"task {args.task}, robot {args.robot}, variations {variations}, {args.episodes} episodes each, "
           f"100x180 frames, {os.cpu_count()} CPUs")
     bare, frames = bare_rate(args.task, args.robot, variations, args.episodes)
-    print(f"bare env step+render+expert (1 process): {bare:6.1f} frames/s ({frames} frames)")
+    print(f"bare env step+render+expert, 1 process: {bare:6.1f} frames/s ({frames} frames)", flush=True)
+    bare_two = parallel_bare_rate(args.task, args.robot, variations, args.episodes)
+    print(f"bare, 2 processes at once (1 render thread each): {bare_two:6.1f} frames/s in total", flush=True)
     one = None
     for workers in (1, 2):
         report = collect_rate(args.task, args.robot, variations, args.episodes, workers)
@@ -82,8 +109,9 @@ def main() -> None:
             one = rate
             line += f"; overhead vs bare: end to end {bare / rate - 1:+.0%}, steady state {bare / steady - 1:+.0%}"
         else:
-            line += f"; speed-up vs 1 worker: {rate / one:.2f}x"
-        print(line)
+            line += (f"; speed-up vs 1 worker: {rate / one:.2f}x end to end; "
+                     f"vs 2 bare processes: {rate / bare_two - 1:+.0%} end to end, {2 * steady / bare_two - 1:+.0%} steady state")
+        print(line, flush=True)
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@
     python -m pipelines.bench.env_bench [--tasks door,drawer] [--steps 100] [--slow-render]
 
 The expert drives the robot so that contacts and motion are realistic. "render" renders one 100x180
-agentview frame per step, as recording does; ``--slow-render`` keeps MuJoCo's shadows, reflections and
-skybox on to show what turning them off saves.
+agentview frame per step, as recording does; ``--slow-render`` also renders with MuJoCo's shadows,
+reflections and skybox on and robosuite's full-detail visual meshes, to show what the fast settings save.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from mosaic_data.tasks import TASKS, make_task_env  # noqa: E402
 
 
 def steps_per_second(task: str, robot: str, steps: int, render: bool, fast_render: bool) -> float:
-    env = make_task_env(task, 0, robot, fast_render=fast_render)
+    env = make_task_env(task, 0, robot, fast_render=fast_render, **({} if fast_render else {"visual_face_budget": None}))
     try:
         env.reset_to_seed(0)
         expert = make_expert(env)
