@@ -29,6 +29,25 @@ def get_task_class(task: str) -> type[MosaicTaskEnv]:
     return TASKS[task]
 
 
+def select_variations(
+    task: str, variations: list[int] | None, task_option: str = "--task", variations_option: str = "--variations"
+) -> dict[str, list[int]]:
+    """Task -> variations for a command's task option (a task key or 'all') and variations option (None =
+    every variation); ValueError with one line naming the command's own options."""
+    if task == "all":
+        if variations is not None:
+            raise ValueError(f"{variations_option} applies to one task; drop it with {task_option} all")
+        return {name: [v.index for v in task_class.variations] for name, task_class in TASKS.items()}
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r} ({task_option}): choose one of {', '.join(TASKS)} or 'all'")
+    count = len(TASKS[task].variations)
+    if variations is None:
+        return {task: list(range(count))}
+    if not variations or any(not 0 <= v < count for v in variations):
+        raise ValueError(f"{task} has variations 0..{count - 1}; got {variations_option} {list(variations)} (see `mosaic-data tasks --task {task}`)")
+    return {task: list(dict.fromkeys(variations))}
+
+
 def make_task_env(task: str, variation: int = 0, robot: str = "panda", **kwargs) -> MosaicTaskEnv:
     """Build the robosuite environment of ``task`` for one variation and robot."""
     task_class = get_task_class(task)
@@ -37,4 +56,4 @@ def make_task_env(task: str, variation: int = 0, robot: str = "panda", **kwargs)
     return task_class(variation=variation, robot=robot, **kwargs)
 
 
-__all__ = ["ROBOTS", "TASKS", "MosaicTaskEnv", "Variation", "get_task_class", "make_task_env"]
+__all__ = ["ROBOTS", "TASKS", "MosaicTaskEnv", "Variation", "get_task_class", "make_task_env", "select_variations"]

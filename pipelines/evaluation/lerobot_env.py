@@ -166,20 +166,10 @@ class MosaicEnv(EnvConfig):
 
     def suite(self) -> dict[str, list[int]]:
         """Task -> variations to evaluate, checked with one-line errors."""
-        from mosaic_data.tasks import TASKS
+        from mosaic_data.tasks import select_variations
 
-        if self.task == "all":
-            if self.variations is not None:
-                raise ValueError("--env.variations applies to one task; drop it with --env.task=all")
-            return {name: [v.index for v in task.variations] for name, task in TASKS.items()}
-        if self.task not in TASKS:
-            raise ValueError(f"unknown --env.task={self.task!r}: choose one of {', '.join(TASKS)} or 'all'")
-        count = len(TASKS[self.task].variations)
-        variations = list(range(count)) if self.variations is None else list(self.variations)
-        bad = [v for v in variations if not 0 <= v < count]
-        if bad or not variations:
-            raise ValueError(f"{self.task} has variations 0..{count - 1}; got --env.variations={self.variations}")
-        return {self.task: variations}
+        variations = None if self.variations is None else list(self.variations)
+        return select_variations(self.task, variations, task_option="--env.task", variations_option="--env.variations")
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
         from gymnasium.vector import AutoresetMode

@@ -11,7 +11,7 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-from mosaic_data.tasks import TASKS, get_task_class
+from mosaic_data.tasks import select_variations
 from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
 
 from .agents import AgentSpec, EvaluationError, checkpoint_image_hw, resolve_checkpoint
@@ -107,18 +107,7 @@ class EvaluationPlan:
 
 
 def _tasks_and_variations(task: str, variations: list[int] | None) -> dict[str, list[int]]:
-    if task == "all":
-        if variations is not None:
-            raise EvaluationError("--variations applies to one task; drop it with --task all")
-        return {name: [v.index for v in TASKS[name].variations] for name in TASKS}
-    if task not in TASKS:
-        raise EvaluationError(f"unknown task {task!r}: choose one of {', '.join(TASKS)} or 'all'")
-    task_class = get_task_class(task)
-    count = len(task_class.variations)
-    if variations is None:
-        return {task: list(range(count))}
-    bad = [v for v in variations if not 0 <= v < count]
-    if bad or not variations:
-        raise EvaluationError(f"{task} has variations 0..{count - 1}; got {variations} (see `mosaic-data tasks --task {task}`)")
-    return {task: list(dict.fromkeys(variations))}
-
+    try:
+        return select_variations(task, variations)
+    except ValueError as error:
+        raise EvaluationError(str(error)) from None

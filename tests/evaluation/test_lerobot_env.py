@@ -61,10 +61,12 @@ def test_the_environment_delivers_the_demonstration_to_the_policy(tiny_checkpoin
 
 
 def test_bad_env_options_are_one_line_errors():
-    with pytest.raises(ValueError, match="unknown --env.task='laundry'"):
+    with pytest.raises(ValueError, match=r"unknown task 'laundry' \(--env.task\)"):
         _env_config(task="laundry").create_envs(1)
-    with pytest.raises(ValueError, match="door has variations 0..3"):
+    with pytest.raises(ValueError, match=r"door has variations 0..3; got --env.variations \[9\]"):
         _env_config(variations=[9]).create_envs(1)
+    with pytest.raises(ValueError, match="--env.variations applies to one task; drop it with --env.task all"):
+        _env_config(task="all", variations=[0]).create_envs(1)
 
 
 def test_lerobot_eval_runs_with_env_type_mosaic(tmp_path, tiny_checkpoint):
