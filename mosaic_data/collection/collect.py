@@ -187,13 +187,15 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
     for job in jobs:
         if states[job.repo_id] != "complete" and not request.overwrite:
             _check_staging(job)
-    merged = []
+    merged, merged_complete = [], []
     if request.task == ALL_TASKS:
         for robot in request.robots:
             sources = [source_of(job) for job in jobs if job.settings.robot == robot]
             root = dataset_root(request.output_dir, merged_repo_id_for(robot))
             if _existing_dataset_state(root, sources, request) != "complete":
                 merged.append((robot, root))
+            else:
+                merged_complete.append((robot, root))
     # Everything has been checked: from here on we write.
     report = CollectReport()
     to_collect = [job for job in jobs if states[job.repo_id] != "complete"]
@@ -230,6 +232,8 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
                 threading.Thread(target=importlib.import_module, args=("lerobot.datasets.aggregate",), daemon=True).start()
                 _run_workers(pending, request.workers, on_episode, on_shard)
     report.datasets += [_outcome(job, "collected") for job in to_collect]
+    for robot, root in merged_complete:
+        report.datasets.append(_outcome_of(merged_repo_id_for(robot), root, "complete, left alone"))
     for robot, root in merged:
         sources = [job.root for job in jobs if job.settings.robot == robot]
         merge_datasets(sources, merged_repo_id_for(robot), root)

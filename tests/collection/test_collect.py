@@ -81,3 +81,28 @@ def test_rerun_leaves_complete_dataset_alone_and_refuses_other_settings(door_out
     error = capsys.readouterr().err.strip()
     assert error.count("\n") == 0 and "seed" in error and "--overwrite" in error
     assert not (door_output / "mosaic" / ".door_panda.collecting").exists()
+
+
+def test_task_all_merges_the_suite_and_a_rerun_leaves_every_dataset_alone(tmp_path, monkeypatch, capsys, cli):
+    """``--task all`` on a two-task suite (the whole suite takes minutes): per-task datasets, then the merged
+    ``mosaic/all_panda`` that LeRobot reads with every variation; run again, everything is reported as left alone."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    import mosaic_data.tasks
+
+    monkeypatch.setattr(mosaic_data.tasks, "TASKS", {name: mosaic_data.tasks.TASKS[name] for name in ("door", "press_button")})
+    arguments = ["collect", "--task", "all", "--robot", "panda", "--episodes", "1", "--workers", "2",
+                 "--output-dir", str(tmp_path), "--image-size", TEST_IMAGE_SIZE, "--quiet"]
+    assert cli(*arguments) == 0
+    merged = LeRobotDataset("mosaic/all_panda", root=tmp_path / "mosaic" / "all_panda")
+    descriptions = [v.description for task in ("door", "press_button") for v in get_task_class(task).variations]
+    assert sorted(merged.meta.tasks.index) == sorted(descriptions)
+    assert merged.num_episodes == len(descriptions)
+    sidecar = read_sidecar(tmp_path / "mosaic" / "all_panda")
+    assert [source["task"] for source in sidecar["sources"]] == ["door", "press_button"]
+    assert cli("validate", str(tmp_path / "mosaic" / "all_panda")) == 0
+    capsys.readouterr()
+    assert cli(*arguments) == 0
+    report = capsys.readouterr().out
+    for repo_id in ("mosaic/door_panda", "mosaic/press_button_panda", "mosaic/all_panda"):
+        assert f"{repo_id}: complete, left alone" in report
