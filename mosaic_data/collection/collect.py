@@ -361,7 +361,7 @@ def _worker_environment(workers: int):
     threads = str(max(1, (os.cpu_count() or 1) // max(1, workers)))
     return scoped_environment(
         default={name: threads for name in WORKER_THREAD_VARIABLES}
-        | {"MUJOCO_GL": "egl", "SVT_LOG": "1"}  # SVT_LOG: the AV1 encoder's banner on every episode, errors only
+        | {"MUJOCO_GL": "egl"}
     )
 
 

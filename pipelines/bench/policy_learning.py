@@ -82,6 +82,10 @@ def main():
     from mosaic_policy import MosaicConfig
     from mosaic_policy.processor_mosaic import make_mosaic_pre_post_processors
 
+    from mosaic_data.collection.quiet import quiet_dataset_writing
+
+    quiet_dataset_writing()
+
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         agent_root = collect(Path(tmp) / "agent", "mosaic/door_panda", args.task, "panda", args.variations, args.episodes, args.height, args.width)
