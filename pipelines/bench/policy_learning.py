@@ -123,14 +123,23 @@ def main():
             batch["right_demo"] = sampler.sample(list(batch["task"]), batch["episode_index"].tolist()).float() / 255
             batch["wrong_demo"] = sampler.sample([other_task[t] for t in batch["task"]]).float() / 255
 
+        stats = {key: {name: torch.as_tensor(value, dtype=torch.float32)[:3] for name, value in train_set.meta.stats[key].items()}
+                 for key in ("action", "observation.state")}
+
+        def target_metres(normalised_action):  # MIN_MAX back to metres, position only
+            low, high = stats["action"]["min"], stats["action"]["max"]
+            return (normalised_action[..., :3].clamp(-1, 1) + 1) / 2 * (high - low) + low
+
         @torch.no_grad()
         def evaluate():
             policy.eval()
             nll, n, n_early = 0.0, 0, 0
-            errors = {"right": 0.0, "wrong": 0.0, "right_early": 0.0, "wrong_early": 0.0}
+            errors = {f"{key}{part}": 0.0 for key in ("right", "wrong", "step_right", "step_wrong") for part in ("", "_early")}
             for batch in eval_batches:
                 valid = ~batch["action_is_pad"]
                 early = valid & (batch["frame_index"][:, None] + torch.arange(valid.shape[1]) < args.early_frames)
+                position = batch["observation.state"][..., :3] * stats["observation.state"]["std"] + stats["observation.state"]["mean"]
+                true_step = target_metres(batch["action"]) - position
                 for key, demo in (("right", batch["right_demo"]), ("wrong", batch["wrong_demo"])):
                     encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo, batch[IMAGE_KEY])
                     embeddings = policy.model.frame_embeddings(encoded["obs_post"])
@@ -138,6 +147,12 @@ def main():
                     error = (dist.mode() - batch["action"].clamp(-1, 1)).abs().mean(-1)
                     errors[key] += error[valid].sum().item()
                     errors[f"{key}_early"] += error[early].sum().item()
+                    # The commanded step (target minus current grip position), in mm: the action is an absolute
+                    # target a little ahead of the hand, so its error above is mostly the state's; the step is
+                    # where the goal shows.
+                    step_error = 1000 * torch.linalg.vector_norm(target_metres(dist.mode()) - position - true_step, dim=-1)
+                    errors[f"step_{key}"] += step_error[valid].sum().item()
+                    errors[f"step_{key}_early"] += step_error[early].sum().item()
                     if key == "right":
                         nll += -dist.log_prob(batch["action"]).sum(-1)[valid].sum().item()
                 n += valid.sum().item()
@@ -169,6 +184,12 @@ def main():
             f"all frames {after[1]['right']:.3f} / {after[1]['wrong']:.3f}, first {args.early_frames} frames "
             f"{after[1]['right_early']:.3f} / {after[1]['wrong_early']:.3f} (before training: {before[1]['right']:.3f} / "
             f"{before[1]['wrong']:.3f}, {before[1]['right_early']:.3f} / {before[1]['wrong_early']:.3f})"
+        )
+        print(
+            f"held-out error of the commanded step (|predicted - expert| of target minus grip position, mm), right demo / "
+            f"demo of another variation: all frames {after[1]['step_right']:.1f} / {after[1]['step_wrong']:.1f}, first "
+            f"{args.early_frames} frames {after[1]['step_right_early']:.1f} / {after[1]['step_wrong_early']:.1f} (before "
+            f"training: {before[1]['step_right']:.1f} / {before[1]['step_wrong']:.1f})"
         )
 
 
