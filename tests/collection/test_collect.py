@@ -106,3 +106,38 @@ def test_task_all_merges_the_suite_and_a_rerun_leaves_every_dataset_alone(tmp_pa
     report = capsys.readouterr().out
     for repo_id in ("mosaic/door_panda", "mosaic/press_button_panda", "mosaic/all_panda"):
         assert f"{repo_id}: complete, left alone" in report
+
+
+def test_a_failed_expert_attempt_leaves_no_frames_in_the_shard(tmp_path):
+    """Steps are written while the expert acts; a failed attempt must vanish from the parquet and the video
+    (LeRobot's clear_episode_buffer cancels its streaming encoding). The first attempt is made to fail by
+    declaring its instance unsuccessful; the simulator, writer and encoder are the real ones."""
+    import av
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from mosaic_data.collection.plan import CollectionSettings, ShardSpec
+    from mosaic_data.collection.worker import EnvironmentCache, collect_shard
+
+    settings = CollectionSettings(task="door", robot="panda", variations=(1,), episodes_per_variation=1, base_seed=0,
+                                  image_height=HEIGHT, image_width=WIDTH)
+    spec = ShardSpec(settings, variation=1, first_slot=0, end_slot=1, staging_dir=tmp_path / "staging")
+    environments = EnvironmentCache()
+    env = environments.get(settings, 1)
+    first_attempt, real_check = episode_seed(0, 1, 0, 0), env.check_success
+    env.check_success = lambda *args, **kwargs: env.instance_seed != first_attempt and real_check(*args, **kwargs)
+    try:
+        result = collect_shard(spec, environments)
+        assert result.episodes[0]["attempts"] == 2 and result.episodes[0]["failed_seeds"] == [first_attempt]
+        env.check_success = real_check
+        env.reset_to_seed(episode_seed(0, 1, 0, 1))
+        regenerated = env.render_agentview()
+    finally:
+        environments.close()
+    dataset = LeRobotDataset("mosaic/door_panda", root=spec.root)
+    assert len(dataset) == result.episodes[0]["length"] == result.frames
+    videos = list((spec.root / "videos").rglob("*.mp4"))
+    assert len(videos) == 1
+    with av.open(str(videos[0])) as container:
+        assert sum(1 for _ in container.decode(video=0)) == len(dataset)
+    stored_first = (dataset[0][CAMERA_KEY].permute(1, 2, 0).numpy() * 255).round()
+    assert np.abs(stored_first - regenerated.astype(float)).mean() < 6.0  # the successful attempt's first frame
