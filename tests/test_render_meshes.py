@@ -92,3 +92,17 @@ def test_lighter_meshes_keep_the_physics_and_the_picture(robot):
     finally:
         simplified.close()
         original.close()
+
+
+def test_a_mesh_no_simplification_keeps_within_tolerance_is_left_as_it_is(tmp_path, monkeypatch):
+    """1000 separate small triangles scattered over a metre: dropping any of them moves the surface by far more
+    than the tolerance, so the original file is used (not a copy with averaged normals and as many faces)."""
+    monkeypatch.setenv("MOSAIC_CACHE_DIR", str(tmp_path / "cache"))
+    rng = np.random.default_rng(0)
+    corners = rng.uniform(0, 1, (1000, 1, 3)) + rng.uniform(0, 0.01, (1000, 3, 3))
+    records = b"".join(struct.pack("<3f", 0, 0, 0) + corners[i].astype("<f4").tobytes() + b"\0\0" for i in range(len(corners)))
+    soup = tmp_path / "soup.stl"
+    soup.write_bytes(b"\0" * 80 + struct.pack("<I", len(corners)) + records)
+    assert simplified_mesh_file(soup, 800) is None
+    assert [path.suffix for path in (tmp_path / "cache" / "meshes").iterdir()] == [".keep"]  # decided once, remembered
+    assert simplified_mesh_file(soup, 800) is None

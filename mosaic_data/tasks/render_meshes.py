@@ -32,7 +32,7 @@ thread); mean absolute pixel difference 0.6-1.2 of 255, along silhouette edges."
 TOLERANCE_M = 0.005
 """Largest distance (99th percentile) from an original vertex to the simplified surface: under a pixel of the
 100x180 camera at the robot (~1 cm), and enough to keep the Sawyer's layered shells from showing through."""
-_ALGORITHM_VERSION = "5"  # part of the cache key: bump when the simplification changes
+_ALGORITHM_VERSION = "6"  # part of the cache key: bump when the simplification changes
 _VISUAL_GROUP = "1"
 
 
@@ -68,21 +68,23 @@ def _meshes_used_only_by_visual_geoms(root: ET.Element) -> set[str]:
 
 
 def simplified_mesh_file(source: Path, face_budget: int) -> Path | None:
-    """Path of ``source`` simplified to ``face_budget`` faces (made once, then cached); None if already small."""
+    """Path of ``source`` simplified from ``face_budget`` faces on (made once, then cached); None when the
+    original is kept: already within the budget, or no simplification stays within the tolerance."""
     content = source.read_bytes()
     key = hashlib.sha1(content + f"|{face_budget}|{TOLERANCE_M}|{_ALGORITHM_VERSION}".encode()).hexdigest()[:20]
     target = cache_dir() / f"{source.stem}-{key}.obj"
-    small_mark = target.with_suffix(".small")
+    keep_mark = target.with_suffix(".keep")
     if target.is_file():
         return target
-    if small_mark.is_file():
+    if keep_mark.is_file():
         return None
     vertices, faces, normals = read_mesh(source, content)
     target.parent.mkdir(parents=True, exist_ok=True)
-    if len(faces) <= face_budget:
-        _write_atomically(small_mark, b"")
+    reduced = simplify_within_tolerance(vertices, faces, face_budget) if len(faces) > face_budget else None
+    if reduced is None:
+        _write_atomically(keep_mark, b"")
         return None
-    simplified, faces = simplify_within_tolerance(vertices, faces, face_budget)
+    simplified, faces = reduced
     if normals is not None:  # the file's own normals, from the nearest original vertex: the same shading
         from scipy.spatial import cKDTree
 
@@ -91,10 +93,12 @@ def simplified_mesh_file(source: Path, face_budget: int) -> Path | None:
     return target
 
 
-def simplify_within_tolerance(vertices: np.ndarray, faces: np.ndarray, face_budget: int, tolerance_m: float = TOLERANCE_M):
+def simplify_within_tolerance(
+    vertices: np.ndarray, faces: np.ndarray, face_budget: int, tolerance_m: float = TOLERANCE_M
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The fewest faces (``face_budget``, doubled as needed) whose surface stays within ``tolerance_m`` of every
-    original vertex. A fixed face count is not enough: robosuite's Sawyer layers white and grey shells a
-    millimetre apart, and a coarse outer shell lets the inner one show through."""
+    original vertex, or None when only the original does. A fixed face count is not enough: robosuite's Sawyer
+    layers white and grey shells a millimetre apart, and a coarse outer shell lets the inner one show through."""
     import fast_simplification
 
     probe = vertices[np.random.default_rng(0).choice(len(vertices), size=min(len(vertices), 4000), replace=False)]
@@ -104,7 +108,7 @@ def simplify_within_tolerance(vertices: np.ndarray, faces: np.ndarray, face_budg
         if _surface_distance(probe, simplified, simplified_faces) <= tolerance_m:
             return simplified, simplified_faces
         count *= 2
-    return vertices, faces
+    return None
 
 
 def _surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, candidates: int = 16) -> float:
