@@ -12,7 +12,9 @@ from mosaic_data.cli_args import parse_image_size, parse_int_list
 
 def cmd_collect(args: argparse.Namespace) -> int:
     from mosaic_data.collection.collect import CollectRequest, collect
+    from mosaic_data.collection.quiet import quiet_dataset_writing
 
+    quiet_dataset_writing()  # the merges run in this process
     request = CollectRequest(
         task=args.task,
         robots=["panda", "sawyer"] if args.robot == "both" else [args.robot],
@@ -46,8 +48,10 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 def cmd_merge(args: argparse.Namespace) -> int:
     from mosaic_data.collection.merge import merge_datasets
+    from mosaic_data.collection.quiet import quiet_dataset_writing
     from mosaic_data.collection.schema import dataset_root, resolve_dataset
 
+    quiet_dataset_writing()
     sources = [resolve_dataset(name, args.output_dir) for name in args.datasets]
     root = dataset_root(args.output_dir, args.repo_id)
     if root.exists() and not args.overwrite:

@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_sidecar
-from mosaic_data.collection.quiet import quiet_dataset_writing
 from mosaic_data.collection.schema import repo_id_of
 
 
@@ -25,7 +24,6 @@ def aggregate_into(sources: list[tuple[str, Path]], repo_id: str, root: Path, si
     shutil.rmtree(building, ignore_errors=True)
     root.parent.mkdir(parents=True, exist_ok=True)
     quiet = _quiet_lerobot_progress()
-    quiet_dataset_writing()
     try:
         aggregate_datasets(
             repo_ids=[source_repo_id for source_repo_id, _ in sources],

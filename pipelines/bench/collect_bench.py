@@ -89,6 +89,9 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=2, help="per variation")
     args = parser.parse_args()
     variations = [int(v) for v in args.variations.split(",")]
+    from mosaic_data.collection.quiet import quiet_dataset_writing
+
+    quiet_dataset_writing()  # the merges run in this process
     print(f"task {args.task}, robot {args.robot}, variations {variations}, {args.episodes} episodes each, "
           f"100x180 frames, {os.cpu_count()} CPUs")
     bare, frames = bare_rate(args.task, args.robot, variations, args.episodes)
