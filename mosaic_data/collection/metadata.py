@@ -17,12 +17,13 @@ run the task's expert. Layout::
 from __future__ import annotations
 
 import json
-import os
 import platform
 from datetime import UTC, datetime
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any
+
+from mosaic_data.atomic_files import write_bytes_atomically
 
 SIDECAR_NAME = "mosaic.json"
 FORMAT_VERSION = 1
@@ -43,10 +44,7 @@ def read_sidecar(root: Path) -> dict[str, Any] | None:
 
 def write_json_atomically(path: Path, content: dict[str, Any]) -> None:
     """Write JSON so that a reader (or a crash) never sees half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    temporary.write_text(json.dumps(content, indent=2, default=_json_default) + "\n")
-    os.replace(temporary, path)
+    write_bytes_atomically(path, (json.dumps(content, indent=2, default=_json_default) + "\n").encode())
 
 
 def write_sidecar(root: Path, sidecar: dict[str, Any]) -> None:

@@ -19,6 +19,8 @@ from xml.sax.saxutils import quoteattr
 import metaworld
 from robosuite.models.objects import MujocoXMLObject
 
+from mosaic_data.atomic_files import write_bytes_atomically
+
 METAWORLD_OBJECTS_DIR = Path(metaworld.__file__).parent / "assets" / "objects"
 METAWORLD_MESHES_DIR = METAWORLD_OBJECTS_DIR / "meshes"
 METAWORLD_TEXTURES_DIR = METAWORLD_OBJECTS_DIR.parent / "textures"
@@ -135,7 +137,5 @@ class FixtureBuilder:
         _CACHE_DIR.mkdir(parents=True, exist_ok=True)
         path = _CACHE_DIR / f"{self.name}_{hashlib.sha1(xml.encode()).hexdigest()[:12]}.xml"
         if not path.exists():
-            tmp = path.with_suffix(f".{id(self)}.tmp")
-            tmp.write_text(xml)
-            tmp.replace(path)
+            write_bytes_atomically(path, xml.encode())
         return MujocoXMLObject(str(path), name=self.name, joints=joints, duplicate_collision_geoms=False)

@@ -19,11 +19,12 @@ from __future__ import annotations
 import hashlib
 import os
 import struct
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+
+from mosaic_data.atomic_files import write_bytes_atomically
 
 VISUAL_FACE_BUDGET = 800
 """Faces a visual mesh is first simplified to; doubled until the surface is within ``TOLERANCE_M``. On a door
@@ -82,14 +83,14 @@ def simplified_mesh_file(source: Path, face_budget: int) -> Path | None:
     target.parent.mkdir(parents=True, exist_ok=True)
     reduced = simplify_within_tolerance(vertices, faces, face_budget) if len(faces) > face_budget else None
     if reduced is None:
-        _write_atomically(keep_mark, b"")
+        write_bytes_atomically(keep_mark, b"")
         return None
     simplified, faces = reduced
     if normals is not None:  # the file's own normals, from the nearest original vertex: the same shading
         from scipy.spatial import cKDTree
 
         normals = normals[cKDTree(vertices).query(simplified)[1]]
-    _write_atomically(target, _obj_bytes(simplified, faces, normals))
+    write_bytes_atomically(target, _obj_bytes(simplified, faces, normals))
     return target
 
 
@@ -228,14 +229,3 @@ def _obj_bytes(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
         lines += [f"vn {x:.5f} {y:.5f} {z:.5f}" for x, y, z in normals]
         lines += [f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}" for a, b, c in faces]
     return ("\n".join(lines) + "\n").encode()
-
-
-def _write_atomically(path: Path, content: bytes) -> None:
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            stream.write(content)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from mosaic_data.atomic_files import write_bytes_atomically
 from mosaic_data.collection.metadata import write_json_atomically
 
 from .rollouts import EpisodeResult
@@ -140,11 +141,8 @@ def print_table(tables: dict[str, Any]) -> str:
 def write_reports(path: Path, report: dict[str, Any]) -> tuple[Path, Path]:
     """``path`` (JSON) and the same name with ``.md`` (Markdown), written atomically."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomically(path, report)
     markdown_path = path.with_suffix(".md")
-    temporary = markdown_path.with_suffix(".md.tmp")
-    temporary.write_text(markdown(report["tables"], report["settings"]))
-    temporary.replace(markdown_path)
+    write_bytes_atomically(markdown_path, markdown(report["tables"], report["settings"]).encode())
     return path, markdown_path
 

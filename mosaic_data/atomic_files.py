@@ -1,0 +1,24 @@
+"""Writing a file so that a reader, a parallel writer or a crash never sees half of it.
+
+Used for the collection's sidecar and shard records, the evaluation reports and the shared mesh cache,
+which parallel workers may fill at the same moment: each writer writes its own temporary file beside the
+target and renames it over the target (atomic on POSIX), and a failed write leaves no temporary behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def write_bytes_atomically(path: Path, content: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            stream.write(content)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
