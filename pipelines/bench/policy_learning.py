@@ -1,6 +1,7 @@
 """Benchmark: does MOSAIC learn, and does it use the demonstration? A short CPU run on collected door data.
 
-    python -m pipelines.bench.policy_learning [--variations 0 1] [--episodes 4] [--steps 300]
+    python -m pipelines.bench.policy_learning [--task door] [--variations 0 1] [--episodes 4] [--steps 300]
+        [--eval-every 500] [--data-dir DIR] [--save-checkpoint DIR]
 
 Collects expert episodes of the door task with the Panda (agent) and the Sawyer (demonstrator) at a reduced
 image size (mosaic_data's experts, LeRobot's writer), holds out the last Panda episode of every variation,
@@ -9,9 +10,14 @@ prints the held-out BC loss before and after, and the held-out action error give
 variation against a demo of another one, over all frames and over the first `--early-frames` frames of each
 episode (before the arm's motion gives the goal away). Variations 0 and 1 are the same door swung opposite
 ways: only the demonstration tells them apart.
+
+`--eval-every` prints the held-out figures during training (how the demo dependence grows with steps);
+`--data-dir` keeps the collected datasets for the next run; `--save-checkpoint` writes the trained policy
+with its processors in lerobot-train's `pretrained_model` layout, so `mosaic-eval --policy.path=DIR` rolls it out.
 """
 
 import argparse
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -72,6 +78,9 @@ def main():
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--early-frames", type=int, default=10, help="frames counted as 'early' in the error table")
+    parser.add_argument("--eval-every", type=int, default=0, help="also print the held-out figures every N steps")
+    parser.add_argument("--data-dir", type=Path, help="collect into (or reuse) this folder instead of a temporary one")
+    parser.add_argument("--save-checkpoint", type=Path, help="write the trained policy and processors here")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -86,15 +95,24 @@ def main():
 
     quiet_dataset_writing()
 
+    agent_repo, demo_repo = f"mosaic/{args.task}_panda", f"mosaic/{args.task}_sawyer"
     with tempfile.TemporaryDirectory() as tmp:
-        start = time.perf_counter()
-        agent_root = collect(Path(tmp) / "agent", "mosaic/door_panda", args.task, "panda", args.variations, args.episodes, args.height, args.width)
-        demo_root = collect(Path(tmp) / "demo", "mosaic/door_sawyer", args.task, "sawyer", args.variations, args.episodes, args.height, args.width)
-        print(f"collected {args.task} variations {args.variations}, {args.episodes} episodes each per robot, in {time.perf_counter() - start:.0f} s")
+        data_dir = args.data_dir or Path(tmp)
+        name = f"{args.task}_v{'-'.join(map(str, args.variations))}_e{args.episodes}_{args.height}x{args.width}"
+        agent_root, demo_root = data_dir / name / "agent", data_dir / name / "demo"
+        if (agent_root / "meta" / "info.json").exists() and (demo_root / "meta" / "info.json").exists():
+            print(f"reusing the datasets in {data_dir / name}")
+        else:
+            start = time.perf_counter()
+            for root in (agent_root, demo_root):  # a half-written earlier attempt
+                shutil.rmtree(root, ignore_errors=True)
+            collect(agent_root, agent_repo, args.task, "panda", args.variations, args.episodes, args.height, args.width)
+            collect(demo_root, demo_repo, args.task, "sawyer", args.variations, args.episodes, args.height, args.width)
+            print(f"collected {args.task} variations {args.variations}, {args.episodes} episodes each per robot, in {time.perf_counter() - start:.0f} s")
 
         from lerobot.datasets import LeRobotDatasetMetadata
 
-        meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+        meta = LeRobotDatasetMetadata(agent_repo, root=agent_root)
         tasks = [t[0] for t in meta.episodes["tasks"]]
         held_out = [max(i for i, t in enumerate(tasks) if t == task) for task in dict.fromkeys(tasks)]
         train_episodes = [i for i in range(meta.total_episodes) if i not in held_out]
@@ -102,7 +120,7 @@ def main():
         config = MosaicConfig(
             device="cpu",
             push_to_hub=False,
-            demo_repo_id="mosaic/door_sawyer",
+            demo_repo_id=demo_repo,
             demo_root=str(demo_root),
             train_obs_frames=args.obs_frames,
             ema_total_steps=args.steps,
@@ -110,10 +128,10 @@ def main():
         )
         deltas = [i / meta.fps for i in config.observation_delta_indices]
         delta_timestamps = {IMAGE_KEY: deltas, "observation.state": deltas, "action": deltas}
-        train_set = LeRobotDataset("mosaic/door_panda", root=agent_root, episodes=train_episodes, delta_timestamps=delta_timestamps)
-        eval_set = LeRobotDataset("mosaic/door_panda", root=agent_root, episodes=held_out, delta_timestamps=delta_timestamps)
+        train_set = LeRobotDataset(agent_repo, root=agent_root, episodes=train_episodes, delta_timestamps=delta_timestamps)
+        eval_set = LeRobotDataset(agent_repo, root=agent_root, episodes=held_out, delta_timestamps=delta_timestamps)
         policy = make_policy(config, ds_meta=train_set.meta)
-        preprocessor, _ = make_mosaic_pre_post_processors(config, dataset_stats=train_set.meta.stats)
+        preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=train_set.meta.stats)
         optimizer = torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr)
         sampler = policy.demo_sampler
         other_task = {t: next(o for o in dict.fromkeys(tasks) if o != t) for t in dict.fromkeys(tasks)}
@@ -160,9 +178,21 @@ def main():
             policy.train()
             return nll / n, {k: v / (n_early if k.endswith("early") else n) for k, v in errors.items()}
 
+        def report(when: str, figures) -> None:
+            nll, errors = figures
+            print(
+                f"{when}: held-out BC loss {nll:.2f} nats; right demo / demo of another variation: action error (mean "
+                f"|a - a*|, normalised [-1, 1] units) all frames {errors['right']:.3f} / {errors['wrong']:.3f}, first "
+                f"{args.early_frames} frames {errors['right_early']:.3f} / {errors['wrong_early']:.3f}; commanded-step "
+                f"error (|predicted - expert| of target minus grip position, mm) all frames {errors['step_right']:.1f} / "
+                f"{errors['step_wrong']:.1f}, first {args.early_frames} frames {errors['step_right_early']:.1f} / "
+                f"{errors['step_wrong_early']:.1f}",
+                flush=True,
+            )
+
         before = evaluate()
         loader = torch.utils.data.DataLoader(train_set, batch_size=args.batch_size, shuffle=True, drop_last=True)
-        step, start = 0, time.perf_counter()
+        step, start, eval_seconds = 0, time.perf_counter(), 0.0
         while step < args.steps:
             for batch in loader:
                 loss, info = policy.forward(preprocessor(batch))
@@ -173,24 +203,22 @@ def main():
                 policy.update()
                 step += 1
                 if step % 50 == 0:
-                    print(f"step {step}: loss {info['loss']:.2f} (bc {info['bc_loss']:.2f}), {(time.perf_counter() - start) / step:.2f} s/step")
+                    print(f"step {step}: loss {info['loss']:.2f} (bc {info['bc_loss']:.2f}), {(time.perf_counter() - start - eval_seconds) / step:.2f} s/step")
+                if args.eval_every and step % args.eval_every == 0 and step < args.steps:
+                    eval_start = time.perf_counter()
+                    report(f"after {step} steps", evaluate())
+                    eval_seconds += time.perf_counter() - eval_start
                 if step >= args.steps:
                     break
         after = evaluate()
         sampler.close()
         print(f"held-out BC loss (nats per step, 7 dims): {before[0]:.2f} before -> {after[0]:.2f} after {args.steps} steps")
-        print(
-            f"held-out action error (mean |a - a*| in normalised [-1, 1] units), right demo / demo of another variation: "
-            f"all frames {after[1]['right']:.3f} / {after[1]['wrong']:.3f}, first {args.early_frames} frames "
-            f"{after[1]['right_early']:.3f} / {after[1]['wrong_early']:.3f} (before training: {before[1]['right']:.3f} / "
-            f"{before[1]['wrong']:.3f}, {before[1]['right_early']:.3f} / {before[1]['wrong_early']:.3f})"
-        )
-        print(
-            f"held-out error of the commanded step (|predicted - expert| of target minus grip position, mm), right demo / "
-            f"demo of another variation: all frames {after[1]['step_right']:.1f} / {after[1]['step_wrong']:.1f}, first "
-            f"{args.early_frames} frames {after[1]['step_right_early']:.1f} / {after[1]['step_wrong_early']:.1f} (before "
-            f"training: {before[1]['step_right']:.1f} / {before[1]['step_wrong']:.1f})"
-        )
+        report("before training", before)
+        report(f"after {args.steps} steps", after)
+        if args.save_checkpoint:
+            for part in (policy, preprocessor, postprocessor):
+                part.save_pretrained(args.save_checkpoint)
+            print(f"saved the trained policy to {args.save_checkpoint} (mosaic-eval --policy.path={args.save_checkpoint})")
 
 
 if __name__ == "__main__":
