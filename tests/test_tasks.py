@@ -167,6 +167,21 @@ def test_render_returns_the_observation_frame_without_rendering_again():
         blind.close()
 
 
+def test_a_scene_renders_its_own_frames_while_another_scene_is_alive():
+    """An evaluation worker holds the agent's scene and the demonstrator's; robosuite renders in the current GL
+    context, which was the newest scene's, so the older scene's frames came out through the wrong camera."""
+    first = make_task_env("door", 0, "panda", image_height=48, image_width=88)
+    first.reset_to_seed(3)
+    before = first.render_agentview()
+    second = make_task_env("door", 0, "sawyer", image_height=48, image_width=88)
+    second.reset_to_seed(3)
+    second.render_agentview()
+    assert np.array_equal(first.render_agentview(), before), "the first scene's frame changed once a second scene rendered"
+    second.close()
+    assert np.array_equal(first.render_agentview(), before), "the first scene's frame changed once the second scene closed"
+    first.close()
+
+
 def test_every_task_is_registered_with_gymnasium():
     for task in TASKS:
         assert gym_id(task) in gymnasium.registry

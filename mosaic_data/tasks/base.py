@@ -278,9 +278,27 @@ class MosaicTaskEnv(ManipulationEnv):
         ).astype(np.float32)
 
     def render_agentview(self) -> np.ndarray:
-        """RGB image (H, W, 3) uint8 from the agentview camera, right side up."""
+        """RGB image (H, W, 3) uint8 from the agentview camera, right side up.
+
+        Makes this scene's GL context current first: robosuite's ``MjSim.render`` draws in whatever context is
+        current, which is the last scene *built* in the process, so with two scenes alive (an evaluation's
+        agent and demonstrator, cached scenes of several variations) the older one drew its frames with the
+        other's GL objects: a wrong camera and wrong meshes (tested).
+        """
+        self._make_gl_context_current()
         image = self.sim.render(camera_name="agentview", height=self.image_height, width=self.image_width)
         return np.ascontiguousarray(image[::-1])
+
+    def _make_gl_context_current(self) -> None:
+        context = self.sim._render_context_offscreen if self.sim is not None else None
+        if context is not None:
+            context.gl_ctx.make_current()
+
+    def _destroy_sim(self) -> None:
+        """Free this scene's GL objects in its own GL context: robosuite frees them in whichever context is
+        current, so closing one scene deleted the meshes and textures of another live one (tested)."""
+        self._make_gl_context_current()
+        super()._destroy_sim()
 
     def _configure_fast_render(self) -> None:
         """Turn off shadows, reflections and skybox: almost the same image at about twice the frame rate."""
