@@ -11,6 +11,9 @@ variation against a demo of another one, over all frames and over the first `--e
 episode (before the arm's motion gives the goal away). Variations 0 and 1 are the same door swung opposite
 ways: only the demonstration tells them apart.
 
+The demonstrations of the held-out figures are held out too (the last `--held-out-demos` demonstrator episodes
+of every variation never condition a training sample), so they measure one-shot use of new demonstrations.
+
 `--eval-every` prints the held-out figures during training (how the demo dependence grows with steps);
 `--data-dir` keeps the collected datasets for the next run; `--save-checkpoint` writes the trained policy
 with its processors in lerobot-train's `pretrained_model` layout, so `mosaic-eval --policy.path=DIR` rolls it out.
@@ -65,6 +68,21 @@ def collect(root: Path, repo_id: str, task: str, robot: str, variations, episode
     return root
 
 
+def hold_out_demos(sampler, per_variation: int, agent_meta):
+    """Move the last ``per_variation`` demonstrator episodes of every variation out of the training ``sampler``
+    and into a new (synchronous) sampler for the held-out figures, before the training sampler draws anything."""
+    from mosaic_policy.paired_sampling import PairedDemoSampler
+
+    if per_variation < 1:
+        raise SystemExit("--held-out-demos must be at least 1")
+    held_out = PairedDemoSampler(sampler.repo_id, sampler.meta.root, sampler.image_key, sampler.n_frames, agent_meta, threads=0)
+    for task, episodes in sampler.episodes_by_task.items():
+        if len(episodes) <= per_variation:
+            raise SystemExit(f"variation {task!r} has {len(episodes)} demonstrator episodes: use more --episodes")
+        sampler.episodes_by_task[task], held_out.episodes_by_task[task] = episodes[:-per_variation], episodes[-per_variation:]
+    return held_out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="door")
@@ -78,6 +96,8 @@ def main():
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--early-frames", type=int, default=10, help="frames counted as 'early' in the error table")
+    parser.add_argument("--held-out-demos", type=int, default=2,
+                        help="demonstrator episodes per variation kept out of training, for the held-out figures")
     parser.add_argument("--eval-every", type=int, default=0, help="also print the held-out figures every N steps")
     parser.add_argument("--data-dir", type=Path, help="collect into (or reuse) this folder instead of a temporary one")
     parser.add_argument("--save-checkpoint", type=Path, help="write the trained policy and processors here")
@@ -134,12 +154,13 @@ def main():
         preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=train_set.meta.stats)
         optimizer = torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr)
         sampler = policy.demo_sampler
+        eval_sampler = hold_out_demos(sampler, args.held_out_demos, train_set.meta)
         other_task = {t: next(o for o in dict.fromkeys(tasks) if o != t) for t in dict.fromkeys(tasks)}
 
         eval_batches = [preprocessor(b) | {"frame_index": b["frame_index"]} for b in torch.utils.data.DataLoader(eval_set, batch_size=16)]
         for batch in eval_batches:
-            batch["right_demo"] = sampler.sample(list(batch["task"]), batch["episode_index"].tolist()).float() / 255
-            batch["wrong_demo"] = sampler.sample([other_task[t] for t in batch["task"]]).float() / 255
+            batch["right_demo"] = eval_sampler.sample(list(batch["task"]), batch["episode_index"].tolist()).float() / 255
+            batch["wrong_demo"] = eval_sampler.sample([other_task[t] for t in batch["task"]]).float() / 255
 
         stats = {key: {name: torch.as_tensor(value, dtype=torch.float32)[:3] for name, value in train_set.meta.stats[key].items()}
                  for key in ("action", "observation.state")}
