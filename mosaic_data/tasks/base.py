@@ -289,10 +289,14 @@ class MosaicTaskEnv(ManipulationEnv):
         image = self.sim.render(camera_name="agentview", height=self.image_height, width=self.image_width)
         return np.ascontiguousarray(image[::-1])
 
+    @property
+    def _offscreen_context(self):
+        """robosuite's offscreen render context of this scene (None before the simulation exists or after it is freed)."""
+        return self.sim._render_context_offscreen if self.sim is not None else None
+
     def _make_gl_context_current(self) -> None:
-        context = self.sim._render_context_offscreen if self.sim is not None else None
-        if context is not None:
-            context.gl_ctx.make_current()
+        if self._offscreen_context is not None:
+            self._offscreen_context.gl_ctx.make_current()
 
     def _destroy_sim(self) -> None:
         """Free this scene's GL objects in its own GL context: robosuite frees them in whichever context is
@@ -302,7 +306,7 @@ class MosaicTaskEnv(ManipulationEnv):
 
     def _configure_fast_render(self) -> None:
         """Turn off shadows, reflections and skybox: almost the same image at about twice the frame rate."""
-        context = self.sim._render_context_offscreen
+        context = self._offscreen_context
         if context is None:
             return
         for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION, mujoco.mjtRndFlag.mjRND_SKYBOX):
