@@ -33,7 +33,8 @@ WORKSPACE_HIGH = np.array([0.5, 0.6, 1.5])
 """Bounds (m) of the action's target position, a box around the table that both robots can reach."""
 ACTION_LOW = np.concatenate([WORKSPACE_LOW, [-np.pi] * 3, [-1.0]]).astype(np.float32)
 ACTION_HIGH = np.concatenate([WORKSPACE_HIGH, [np.pi] * 3, [1.0]]).astype(np.float32)
-"""The action box: target position in the workspace, axis-angle components in [-pi, pi], gripper in [-1, 1]."""
+"""The action box: target position in the workspace, rotation vector from gripper-down (see
+:mod:`mosaic_data.tasks.base`) in [-pi, pi] per component, gripper in [-1, 1]."""
 
 
 def gym_id(task: str) -> str:
@@ -97,7 +98,7 @@ class MosaicGymEnv(gym.Env):
         action = np.asarray(action, dtype=np.float64).reshape(-1)
         if action.shape != (ACTION_DIM,):
             raise ValueError(
-                f"action must have {ACTION_DIM} values [x, y, z, ax, ay, az, gripper], got shape {action.shape}"
+                f"action must have {ACTION_DIM} values [x, y, z, rx, ry, rz, gripper], got shape {action.shape}"
             )
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action contains NaN or inf: {action}")

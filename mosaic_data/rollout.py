@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mosaic_data.collection.schema import ACTION_NAMES
 from mosaic_data.experts import make_expert
 from mosaic_data.tasks import make_task_env
 from mosaic_data.tasks.base import MosaicTaskEnv
@@ -117,7 +118,6 @@ def write_rerun(path: Path, episodes: list[Episode], fps: int = 20) -> None:
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     recording.save(str(path), default_blueprint=blueprint)
-    action_names = ["x", "y", "z", "ax", "ay", "az", "gripper"]
     global_step = 0
     for index, episode in enumerate(episodes):
         recording.set_time("episode", sequence=index)
@@ -130,7 +130,7 @@ def write_rerun(path: Path, episodes: list[Episode], fps: int = 20) -> None:
             recording.set_time("episode_step", sequence=step)
             if episode.frames:
                 recording.log("/camera", rr.Image(episode.frames[step]))
-            for name, value in zip(action_names, episode.actions[step]):
+            for name, value in zip(ACTION_NAMES, episode.actions[step]):
                 recording.log(f"/action/{name}", rr.Scalars(float(value)))
             for name, value in zip(["x", "y", "z"], episode.states[step][:3]):
                 recording.log(f"/state/{name}", rr.Scalars(float(value)))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mosaic_data  # noqa: F401  (registers the gymnasium environments)
+from mosaic_data.collection.validate import action_jumps
 from mosaic_data.envs import gym_id
 from mosaic_data.experts import make_expert
 from mosaic_data.rollout import run_expert_episode
@@ -65,7 +66,32 @@ def test_expert_succeeds_on_every_variation(task_env_cache, task, robot):
             failures.append(variation)
         else:
             assert episode.length < env.horizon
+        # The action's rotation chart is continuous over the suite: no axis-angle flip at pi inside an episode.
+        rotations = np.asarray(episode.actions)[:, 3:6]
+        assert np.linalg.norm(rotations, axis=1).max() < 2.5, f"{task}/{robot}/{variation}: rotation near the chart's edge"
+        jumps = action_jumps(episode.actions)
+        assert max(jumps["rx"], jumps["ry"], jumps["rz"]) <= 0.1, f"{task}/{robot}/{variation}: rotation jumps {jumps}"
     assert not failures, f"{task}/{robot}: expert failed on variations {failures}"
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_action_rotation_is_the_turn_from_gripper_down(task_env_cache, robot):
+    """Action (0, 0, yaw) holds the gripper pointing down, turned by yaw about the vertical; zero is gripper-down."""
+    from scipy.spatial.transform import Rotation
+
+    from mosaic_data.tasks.base import GRIPPER_DOWN, action_rotation, rotation_from_action
+
+    env = task_env_cache("press_button", robot, 0)
+    env.reset_to_seed(3)
+    start = env.eef_pos
+    for yaw in (0.0, 0.4):
+        for _ in range(40):
+            env.step(np.concatenate([start, [0.0, 0.0, yaw], [-1.0]]))
+        reached = env.eef_rotation
+        assert (reached.inv() * Rotation.from_euler("z", yaw) * GRIPPER_DOWN).magnitude() < 0.05
+        np.testing.assert_allclose(action_rotation(reached), [0.0, 0.0, yaw], atol=0.05)
+    round_trip = rotation_from_action(action_rotation(Rotation.from_rotvec([0.3, -1.0, 2.0])))
+    assert (round_trip.inv() * Rotation.from_rotvec([0.3, -1.0, 2.0])).magnitude() < 1e-9
 
 
 @pytest.mark.parametrize("task", list(TASKS))

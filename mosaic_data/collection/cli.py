@@ -124,8 +124,10 @@ def add_collection_commands(sub) -> None:
     collect.add_argument("--seed", type=int, default=0, help="base seed; episode seeds follow from it (see meta/mosaic.json)")
     collect.add_argument("--overwrite", action="store_true", help="redo datasets that already exist, and discard unfinished runs")
     collect.add_argument("--quiet", action="store_true", help="no progress bar")
-    # Smaller images only to keep tests fast; datasets for users keep the paper's 100x180.
-    collect.add_argument("--image-size", type=parse_image_size, default=(100, 180), help=argparse.SUPPRESS)
+    collect.add_argument(
+        "--image-size", type=parse_image_size, default=(100, 180),
+        help="camera HxW; the paper's is 100x180, smaller sizes (e.g. 48x88) suit CPU training runs",
+    )
     collect.set_defaults(func=cmd_collect)
 
     merge = sub.add_parser("merge", help="merge datasets of one robot into one with LeRobot's aggregation", formatter_class=defaults)

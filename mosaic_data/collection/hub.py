@@ -25,7 +25,7 @@ def dataset_description(sidecar: dict, repo_id: str) -> str:
         "The LeRobot task string of every frame is its variation's description; it is unique across the suite and "
         "pairs demonstrator and agent episodes of the same variation. Per frame: `" + CAMERA_KEY + "` (video), "
         "`observation.state` (end-effector position, rotation 6D, gripper opening), `action` (absolute world-frame "
-        "end-effector target: xyz, axis-angle, gripper -1 open / +1 closed), `variation`, `next.success`, `next.done`.",
+        "end-effector target: xyz, rotation vector of the turn from a gripper-down reference, gripper -1 open / +1 closed), `variation`, `next.success`, `next.done`.",
         "",
         "### Tasks and variations",
         "",

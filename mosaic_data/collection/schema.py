@@ -17,7 +17,7 @@ FPS = CONTROL_FREQ_HZ
 """Frames per second of every dataset: one frame per 20 Hz control step."""
 
 STATE_NAMES = ["x", "y", "z", "r00", "r01", "r02", "r10", "r11", "r12", "gripper_opening"]
-ACTION_NAMES = ["x", "y", "z", "ax", "ay", "az", "gripper"]
+ACTION_NAMES = ["x", "y", "z", "rx", "ry", "rz", "gripper"]
 
 
 def dataset_features(image_height: int = IMAGE_HEIGHT, image_width: int = IMAGE_WIDTH) -> dict[str, dict]:

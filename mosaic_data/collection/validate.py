@@ -3,7 +3,7 @@
 Checks, in order: LeRobot's metadata loads; the sidecar exists and agrees with it; the schema is MOSAIC's;
 every data parquet file reads (a truncated file does not) and holds the frames the metadata announces,
 episode by episode (frame indices, ``next.done`` on the last frame only, one variation and the matching
-task string per episode); every episode count per variation matches the collection settings; every video
+task string per episode, no action jump that no motion explains); every episode count per variation matches the collection settings; every video
 file decodes, at the right size, to exactly the frames of the episodes it holds.
 """
 
@@ -13,7 +13,13 @@ from collections import Counter
 from pathlib import Path
 
 from mosaic_data.collection.metadata import read_sidecar
-from mosaic_data.collection.schema import CAMERA_KEY, schema_mismatch
+from mosaic_data.collection.schema import ACTION_NAMES, CAMERA_KEY, schema_mismatch
+
+MAX_ACTION_JUMP = {"position": 0.1, "rotation": 0.5}
+"""Largest change of the action between two consecutive frames that a motion explains: metres for x, y, z and
+radians for each rotation component. The experts move the target at most 1.5 cm and 0.08 rad per step (plus a
+slowly integrated tracking offset); a jump past these is a chart flip (axis-angle near pi) or corrupt data.
+The gripper is exempt: it switches between -1 and +1 in one step."""
 
 
 def validate_dataset(root: Path) -> tuple[str, list[str]]:
@@ -120,6 +126,7 @@ def _check_frames(data, records: list[dict], tasks: dict[int, str], descriptions
         variations = set(np.asarray(frames["variation"].tolist()).reshape(-1).tolist())
         if variations != {record["variation"]}:
             problems.append(f"{where}: variation column {sorted(variations)}, meta/mosaic.json says {record['variation']}")
+        _check_action_jumps(np.asarray(frames["action"].tolist(), dtype=float), where, problems)
         task_strings = {tasks.get(int(task_index), "?") for task_index in frames["task_index"]}
         expected = descriptions.get((record["task"], record["variation"]))
         if task_strings != {expected}:
@@ -127,6 +134,28 @@ def _check_frames(data, records: list[dict], tasks: dict[int, str], descriptions
     unknown = sorted(set(by_episode) - {record["episode_index"] for record in records})
     if unknown:
         problems.append(f"episodes {unknown[:5]} are in data/ but not in meta/mosaic.json")
+
+
+def action_jumps(actions) -> dict[str, float]:
+    """Largest change between consecutive frames of each action dimension (by name) of one episode."""
+    import numpy as np
+
+    actions = np.asarray(actions, dtype=float).reshape(len(actions), -1)
+    if len(actions) < 2:
+        return {name: 0.0 for name in ACTION_NAMES}
+    return dict(zip(ACTION_NAMES, np.abs(np.diff(actions, axis=0)).max(axis=0).tolist(), strict=True))
+
+
+def _check_action_jumps(actions, where: str, problems: list[str]) -> None:
+    jumps = action_jumps(actions)
+    for name, jump in jumps.items():
+        kind = "position" if name in ("x", "y", "z") else "rotation" if name.startswith("r") else None
+        if kind is not None and jump > MAX_ACTION_JUMP[kind]:
+            unit = "m" if kind == "position" else "rad"
+            problems.append(
+                f"{where}: action {name} jumps by {jump:.3f} {unit} in one step (at most {MAX_ACTION_JUMP[kind]} {unit} "
+                "is a motion); a rotation chart flip or corrupt data: collect it again with this version"
+            )
 
 
 def _check_counts(sources: list[dict], records: list[dict], problems: list[str]) -> None:

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from mosaic_data.tasks.base import GRIPPER_CLOSED, GRIPPER_OPEN, MosaicTaskEnv, Variation
+from mosaic_data.tasks.base import GRIPPER_CLOSED, GRIPPER_DOWN, GRIPPER_OPEN, MosaicTaskEnv, Variation, action_rotation
 
-TOP_DOWN = Rotation.from_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]))
+TOP_DOWN = GRIPPER_DOWN
 """Gripper pointing straight down, the orientation both robots start near."""
 
 
@@ -148,7 +148,7 @@ class ScriptedExpert:
         )
         self._command_rot = _turn_towards(self._command_rot, orientation, self.max_turn_rad)
         sent_pos = self._command_pos + self._offset
-        return np.concatenate([sent_pos, self._command_rot.as_rotvec(), [gripper]]).astype(np.float32)
+        return np.concatenate([sent_pos, action_rotation(self._command_rot), [gripper]]).astype(np.float32)
 
     def _advance(self, phase: Phase, target: np.ndarray) -> None:
         if self._phase_index >= len(self._phases):

@@ -8,9 +8,14 @@ Conventions shared by every task (the same for the Panda agent and the Sawyer de
 
 * World frame: robosuite's. Origin on the floor under the table centre, +x away from the robot, +y to the
   robot's left, +z up. Lengths in metres, angles in radians.
-* Action (7,): absolute world-frame end-effector target ``[x, y, z, ax, ay, az, gripper]``: position of the
-  gripper's grip site, orientation as an axis-angle vector, gripper ``-1`` open ... ``+1`` closed. Executed
-  by robosuite's OSC_POSE controller (``input_type="absolute"``, ``input_ref_frame="world"``) at 20 Hz.
+* Action (7,): absolute world-frame end-effector target ``[x, y, z, rx, ry, rz, gripper]``: position of the
+  gripper's grip site; orientation as the rotation vector (rad) of the world-frame turn that takes the
+  gripper-down reference ``GRIPPER_DOWN`` to the target orientation (``target = exp(r) * GRIPPER_DOWN``);
+  gripper ``-1`` open ... ``+1`` closed. Every task grasps from above, so ``r`` stays far from the axis-angle
+  singularity at pi (a plain world axis-angle of a top-down grasp has magnitude ~pi and flips sign as the hand
+  turns a few degrees: a learned policy would average +pi and -pi); a turn of the hand by ``yaw`` about the
+  vertical is ``r = (0, 0, yaw)``. Converted to robosuite's absolute axis-angle in :meth:`MosaicTaskEnv.step`
+  and executed by its OSC_POSE controller (``input_type="absolute"``, ``input_ref_frame="world"``) at 20 Hz.
 * State (10,): grip-site position (3), orientation as the first two columns of its rotation matrix (6,
   continuous, unlike axis-angle near a top-down grasp), gripper opening in ``[0, 1]`` (1 = fully open).
 * Camera ``agentview``: 100 x 180 (H x W) RGB, right side up. Rendered only when asked for, because on a
@@ -62,6 +67,20 @@ class Variation:
     index: int
     description: str
     params: dict[str, Any] = field(default_factory=dict)
+
+
+GRIPPER_DOWN = Rotation.from_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]))
+"""Gripper pointing straight down, fingers closing along the world y axis: the reference of the action's rotation."""
+
+
+def action_rotation(rotation: Rotation) -> np.ndarray:
+    """Rotation vector (3,) of an orientation in the action's chart (the turn from ``GRIPPER_DOWN``, world frame)."""
+    return (rotation * GRIPPER_DOWN.inv()).as_rotvec()
+
+
+def rotation_from_action(rotation_vector: Sequence[float]) -> Rotation:
+    """The orientation an action's rotation vector stands for (inverse of :func:`action_rotation`)."""
+    return Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)) * GRIPPER_DOWN
 
 
 def rotation_to_state(rotation: Rotation) -> np.ndarray:
@@ -146,6 +165,16 @@ class MosaicTaskEnv(ManipulationEnv):
         """
         self.variation_index = self.validate_variation(variation)
         self.variation = self.variations[self.variation_index]
+
+    # ------------------------------------------------------------------ acting
+    def step(self, action):
+        """One 20 Hz control step with an action in the suite's convention (module docstring).
+
+        robosuite's OSC takes an absolute world axis-angle; the action's rotation is relative to ``GRIPPER_DOWN``.
+        """
+        action = np.array(action, dtype=float)
+        action[3:6] = rotation_from_action(action[3:6]).as_rotvec()
+        return super().step(action)
 
     # ------------------------------------------------------------------ model
     def _load_model(self) -> None:

@@ -110,3 +110,23 @@ def test_merge_refuses_mixing_robots(door_output, capsys, cli):
     assert status == 2
     assert "different robots" in capsys.readouterr().err
     assert not (door_output / "mosaic" / "mixed").exists()
+
+
+def test_validate_reports_an_action_jump_that_no_motion_explains():
+    """A rotation flipping sign near pi (the old axis-angle chart) is a problem; a smooth expert motion is not."""
+    import numpy as np
+
+    from mosaic_data.collection.validate import _check_action_jumps
+
+    smooth = np.zeros((20, 7))
+    smooth[:, 0] = np.linspace(0.0, 0.2, 20)  # 1 cm per step
+    smooth[:, 5] = np.linspace(0.0, 1.0, 20)  # 0.05 rad per step
+    smooth[10:, 6] = 1.0  # the gripper closes in one step: allowed
+    problems: list[str] = []
+    _check_action_jumps(smooth, "episode 0", problems)
+    assert problems == []
+    flipped = smooth.copy()
+    flipped[:, 3] = 3.1
+    flipped[12:, 3] = -3.1  # +pi -> -pi: the same orientation, a 6.2 rad jump of the numbers
+    _check_action_jumps(flipped, "episode 3", problems)
+    assert len(problems) == 1 and problems[0].startswith("episode 3: action rx jumps by 6.200 rad")
