@@ -21,10 +21,15 @@ class MosaicConfig(PreTrainedConfig):
     `demo_repo_id` (the demonstrator dataset paired with `--dataset.repo_id`), `n_attention_layers`
     (2 single-task, 3 multi-task) and `contrastive` (ablations).
 
-    Every training sample holds `train_obs_frames` consecutive agent frames and their actions; it is
-    paired with `n_demo_frames` frames of one demonstrator episode of the same variation (same LeRobot
-    task string): first, last, and one random frame from each middle segment. Actions are normalised to
-    [-1, 1] (MIN_MAX) and modelled per dimension by a discretised logistic mixture over `action_bins` bins.
+    Time scale: datasets are recorded at 20 Hz, the paper's policy acts at about 4 Hz (its original code
+    repeats every action 5 times). Here the policy is queried every `action_chunk` (5) control steps and
+    predicts the next `action_chunk` 20 Hz targets, executed in order (smooth motion, not a held target); a
+    training sample holds `train_obs_frames` (7) agent frames `frame_stride` (5) frames apart, i.e. 1.75 s as in
+    the paper, and the contrastive positive lies within +-`positive_window` of those frames (0.5 s). Every
+    sample is paired with `n_demo_frames` frames of one demonstrator episode of the same variation (same
+    LeRobot task string) and another instance: first, last, and one random frame from each middle segment.
+    Actions are normalised to [-1, 1] (MIN_MAX) and modelled per dimension by a discretised logistic mixture
+    over `action_bins` bins. The policy sees images only (the paper); `use_state` adds the robot state.
 
     Args:
         - demo_repo_id: Repo id of the demonstrator dataset (e.g. "mosaic/door_sawyer"); needed for training.
@@ -34,7 +39,11 @@ class MosaicConfig(PreTrainedConfig):
         - demo_prefetch_batches: How many batches of demonstrator samples per variation are kept decoded ahead.
         - image_key: Camera feature used by the policy (default: the only/first visual input feature).
         - n_demo_frames: Demonstration frames the policy conditions on (first, last, one per middle segment).
-        - train_obs_frames: Consecutive observation frames per training sample.
+        - train_obs_frames: Observation frames per training sample, `frame_stride` dataset frames apart.
+        - frame_stride: Dataset frames between two observation frames of a training sample (5 at 20 Hz: 0.25 s,
+            the paper's policy rate).
+        - action_chunk: Consecutive 20 Hz targets predicted per observation; at inference the policy is queried
+            once per chunk and its targets are executed in order (5: the paper's 4 Hz policy rate).
         - eval_obs_frames: Observation frames per step at inference (the paper: 1, the current frame).
         - n_attention_layers: Non-local attention layers (paper: 2 single-task, 3 multi-task).
         - n_attention_heads: Heads per attention layer.
@@ -44,7 +53,9 @@ class MosaicConfig(PreTrainedConfig):
         - attention_dropout: Dropout on attention outputs.
         - embed_dim: Size of the per-frame embedding fed to the heads.
         - head_hidden_dim: Hidden width of the action / inverse-dynamics MLPs.
-        - use_state: Concatenate the (normalised) robot state to the frame embedding in the action head.
+        - use_state: Concatenate the (normalised) robot state to the frame embedding in the action head (off in
+            the paper: the current grip position predicts most of the next target, a shortcut around the images
+            and the demonstration).
         - n_mixtures: Logistic mixture components per action dimension.
         - action_bins: Discretisation bins per action dimension over [-1, 1].
         - action_sampling: "mode" (mean of the most likely component, deterministic) or "sample" at inference.
@@ -55,12 +66,14 @@ class MosaicConfig(PreTrainedConfig):
         - contrastive_positive: "window" (random frame within +-positive_window steps), "fixed" (the frame
             exactly positive_window steps away) or "same" (the same frame; the two views differ only by
             augmentation).
-        - positive_window: k of the positive modes above, in frames.
+        - positive_window: k of the positive modes above, in observation frames (`frame_stride` dataset frames each).
         - contrastive_dim, contrastive_hidden_dim: Projector / predictor output and hidden widths.
         - contrastive_temperature: InfoNCE temperature applied to the bilinear logits of normalised vectors.
         - ema_momentum: Initial momentum of the EMA target encoder (rises to 1 with a cosine schedule).
-        - ema_total_steps: Steps over which the momentum reaches 1; by default lerobot-train's `--steps` (read
-            from its command line when the policy is built for training, as LeRobot's own parser does for paths).
+        - ema_total_steps: Steps over which the momentum reaches 1; by default lerobot-train's `--steps` of the
+            current run (read from its command line when the policy is built for training, as LeRobot's own parser
+            does for paths). Fine-tuning a checkpoint (`--policy.path`) starts a new schedule; `--resume` keeps the
+            step count and stretches the schedule to the new `--steps`.
         - augment: Apply the training augmentations (never used at inference).
         - crop_scale_min: Smallest area fraction kept by the random resized crop.
         - translate_fraction: Largest random translation, as a fraction of width / height.
@@ -84,8 +97,12 @@ class MosaicConfig(PreTrainedConfig):
     image_key: str | None = None
     # Demonstration frames (first, last, one random frame per middle segment).
     n_demo_frames: int = 4
-    # Consecutive observation frames per training sample.
+    # Observation frames per training sample, frame_stride dataset frames apart (7 x 0.25 s, the paper's window).
     train_obs_frames: int = 7
+    # Dataset frames between consecutive observation frames of a sample (5 at 20 Hz = the paper's 4 Hz).
+    frame_stride: int = 5
+    # 20 Hz targets predicted per query, executed in order (the policy is queried every action_chunk steps).
+    action_chunk: int = 5
     # Observation frames per inference step (the paper uses the current frame only).
     eval_obs_frames: int = 1
 
@@ -113,8 +130,8 @@ class MosaicConfig(PreTrainedConfig):
     embed_dim: int = 256
     # Hidden width of the action / inverse-dynamics MLPs.
     head_hidden_dim: int = 256
-    # Concatenate the normalised robot state to the embedding in the action head.
-    use_state: bool = True
+    # Concatenate the normalised robot state to the embedding in the action head (the paper: images only).
+    use_state: bool = False
     # Logistic mixture components per action dimension.
     n_mixtures: int = 3
     # Discretisation bins per action dimension over the normalised range [-1, 1].
@@ -135,7 +152,7 @@ class MosaicConfig(PreTrainedConfig):
     contrastive_objective: str = "infonce"
     # Positive: "window" (random within +-positive_window), "fixed" (exactly positive_window away), "same".
     contrastive_positive: str = "window"
-    # k of the positive modes, in frames.
+    # k of the positive modes, in observation frames (frame_stride dataset frames each).
     positive_window: int = 2
     # Projector / predictor output width.
     contrastive_dim: int = 128
@@ -186,7 +203,10 @@ class MosaicConfig(PreTrainedConfig):
             raise ValueError(
                 f"`n_demo_frames` must be >= 2 (first and last frame), got {self.n_demo_frames}."
             )
-        for name in ("train_obs_frames", "eval_obs_frames", "n_attention_layers", "n_attention_heads", "n_mixtures"):
+        for name in (
+            "train_obs_frames", "eval_obs_frames", "frame_stride", "action_chunk", "n_attention_layers",
+            "n_attention_heads", "n_mixtures",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
         if self.action_bins < 2:
@@ -243,16 +263,21 @@ class MosaicConfig(PreTrainedConfig):
 
     @property
     def drop_n_last_frames(self) -> int:
-        """lerobot-train's sampler skips window starts whose window would run past the episode end."""
-        return self.train_obs_frames - 1
+        """Every frame may start a sample: frames past an episode's end are padded and masked (`*_is_pad`)."""
+        return 0
 
     @property
     def observation_delta_indices(self) -> list[int]:
-        return list(range(self.train_obs_frames))
+        return [i * self.frame_stride for i in range(self.train_obs_frames)]
 
     @property
     def action_delta_indices(self) -> list[int]:
-        return list(range(self.train_obs_frames))
+        """Every 20 Hz action from the first observation frame to the end of the last frame's chunk."""
+        return list(range((self.train_obs_frames - 1) * self.frame_stride + self.action_chunk))
+
+    def action_window_indices(self) -> list[list[int]]:
+        """For each observation frame of a sample, the positions of its chunk in the sample's action window."""
+        return [[i * self.frame_stride + j for j in range(self.action_chunk)] for i in range(self.train_obs_frames)]
 
     @property
     def reward_delta_indices(self) -> None:

@@ -55,11 +55,12 @@ class DiscretizedLogisticMixture:
             torch.log(cdf_delta.clamp(min=1e-12)),
             log_pdf_mid + torch.log(torch.tensor(self.bin_width, dtype=x.dtype, device=x.device)),
         )
-        eps = 1e-6 * self.bin_width
+        # x sits on a bin centre: half a bin from the edges tells the edge bins apart in any float precision
+        # (a relative epsilon of the width is below float32's resolution at +-1, and the tails went missing).
         log_bin = torch.where(
-            x < self.low + eps,
+            x < self.low + half,
             log_cdf_plus,
-            torch.where(x > self.high - eps, log_one_minus_cdf_minus, log_inner),
+            torch.where(x > self.high - half, log_one_minus_cdf_minus, log_inner),
         )
         return torch.logsumexp(log_bin + F.log_softmax(self.logit_probs, dim=-1), dim=-1)
 

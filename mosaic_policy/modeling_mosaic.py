@@ -6,18 +6,20 @@ embedding -> discretised logistic mixture over actions (behaviour cloning). An i
 the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA target
 encoder shapes the representation before and/or after attention.
 
-Training (lerobot-train): every batch holds `train_obs_frames` agent frames per sample; the demonstrator
-frames come from `batch["demo_frames"]` if present, else from the policy's `PairedDemoSampler` over
-`config.demo_repo_id` (same variation, another instance).
+Training (lerobot-train): every batch holds `train_obs_frames` agent frames per sample, `frame_stride` frames
+apart, and the 20 Hz actions of the whole window; every frame predicts the `action_chunk` targets that follow
+it. The demonstrator frames come from `batch["demo_frames"]` if present, else from the policy's
+`PairedDemoSampler` over `config.demo_repo_id` (same variation, another instance).
 
 Inference: `policy.reset()` then `policy.set_demo(video)` once per episode (the demo tokens and every
-layer's demo keys/values are cached), then `select_action(batch)` with one current frame per step. An
+layer's demo keys/values are cached), then `select_action(batch)` with the current frame every control step:
+the policy runs once per `action_chunk` steps and hands out the predicted targets in order. An
 environment can deliver the demonstration itself as the observation `observation.demo` (what
 `lerobot-eval --env.type=mosaic` does): the first `select_action` after `reset()` caches it.
 """
 
 import functools
-from collections import Counter
+from collections import Counter, deque
 from typing import Any
 
 import numpy as np
@@ -66,11 +68,13 @@ class MosaicModel(nn.Module):
             nn.ReLU(),
         )
         self.state_dim = state_dim if config.use_state else 0
+        # One distribution per action dimension of every target of the chunk, flattened as (chunk, action_dim).
+        chunk_dim = action_dim * config.action_chunk
         self.action_head = DiscretizedLogisticHead(
-            config.embed_dim + self.state_dim, action_dim, config.n_mixtures, config.head_hidden_dim, config.action_bins
+            config.embed_dim + self.state_dim, chunk_dim, config.n_mixtures, config.head_hidden_dim, config.action_bins
         )
         self.inverse_head = DiscretizedLogisticHead(
-            2 * config.embed_dim, action_dim, config.n_mixtures, config.head_hidden_dim, config.action_bins
+            2 * config.embed_dim, chunk_dim, config.n_mixtures, config.head_hidden_dim, config.action_bins
         )
 
         def contrastive():
@@ -139,7 +143,7 @@ def _training_steps() -> int:
     """lerobot-train's ``--steps`` from the command line (LeRobot's parser helper), else its default 100000.
 
     The momentum schedule of the EMA target must end with training, and a policy is not told the run's length;
-    outside lerobot-train (no ``--steps`` argument) the default applies. The value is saved in config.json.
+    outside lerobot-train (no ``--steps`` argument) the default applies.
     """
     from lerobot.configs import parser
 
@@ -148,6 +152,29 @@ def _training_steps() -> int:
         return max(1, int(steps)) if steps is not None else 100_000
     except ValueError:
         return 100_000
+
+
+def _resuming() -> bool:
+    """True inside ``lerobot-train --resume=true``: the checkpoint's step count continues."""
+    from lerobot.configs import parser
+
+    return (parser.parse_arg("resume") or "").lower() in ("true", "1", "yes")
+
+
+def _selected_agent_episodes() -> list[int] | None:
+    """lerobot-train's ``--dataset.episodes`` (e.g. ``[0,1,5]``), the agent episodes a run trains on, if given."""
+    import json
+
+    from lerobot.configs import parser
+
+    episodes = parser.parse_arg("dataset.episodes")
+    if episodes is None:
+        return None
+    try:
+        selected = json.loads(episodes)
+    except ValueError:
+        raise ValueError(f"--dataset.episodes={episodes!r} is not a list of episode indices, e.g. '[0,1,2]'.") from None
+    return [int(e) for e in selected] if isinstance(selected, list) else None
 
 
 def _pooled(features: Tensor) -> Tensor:
@@ -194,10 +221,10 @@ class MosaicPolicy(PreTrainedPolicy):
         # EMA target encoder (no gradients; updated in update() after every optimizer step).
         self.target_trunk = make_target(self.model.trunk) if config.contrastive != "off" else None
         self.target_attention = make_target(self.model.attention) if config.contrastive_after else None
+        # Saved with the weights so that --resume continues the schedule; fine-tuning restarts it (from_pretrained).
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
-
-        if config.ema_total_steps is None:
-            config.ema_total_steps = _training_steps()
+        # The schedule's length is this run's, never a saved one: config.ema_total_steps if set, else --steps.
+        self.ema_total_steps = config.ema_total_steps or _training_steps()
         self.demo_sampler: PairedDemoSampler | None = None
         if dataset_meta is not None and config.demo_repo_id is not None:
             self.demo_sampler = PairedDemoSampler(
@@ -206,6 +233,7 @@ class MosaicPolicy(PreTrainedPolicy):
                 self.camera_key,
                 config.n_demo_frames,
                 agent_meta=dataset_meta,
+                agent_episodes=kwargs.get("agent_episodes", _selected_agent_episodes()),
                 threads=config.demo_loader_threads,
                 prefetch_batches=config.demo_prefetch_batches,
             )
@@ -216,6 +244,19 @@ class MosaicPolicy(PreTrainedPolicy):
             )
         self.reset()
 
+    @classmethod
+    def from_pretrained(cls, *args, **kwargs):
+        """LeRobot's loader; a checkpoint loaded to train on a dataset (fine-tuning) restarts the EMA schedule.
+
+        Under ``lerobot-train --resume=true`` the saved step count is kept and the schedule ends at the new
+        ``--steps``; a fine-tuning run (``--policy.path=...``) would otherwise keep the finished schedule's
+        momentum of 1 and freeze the target encoder for the whole run.
+        """
+        policy = super().from_pretrained(*args, **kwargs)
+        if kwargs.get("dataset_meta") is not None and not _resuming():
+            policy.ema_step.zero_()
+        return policy
+
     # -- LeRobot interface ----------------------------------------------------------------------------------
 
     def get_optim_params(self) -> list[nn.Parameter]:
@@ -225,6 +266,8 @@ class MosaicPolicy(PreTrainedPolicy):
         """Forget the demonstration (call `set_demo` again before the next episode's first action)."""
         self._demo_cache: list[tuple[Tensor, Tensor]] | None = None
         self._inference_trunk: nn.Module | None = None
+        self._action_queue: deque[Tensor] = deque()  # the current chunk's targets not yet handed out
+        self._last_weights: list[Tensor] = []
 
     @torch.no_grad()
     def set_demo(self, frames: Tensor | np.ndarray) -> None:
@@ -260,24 +303,35 @@ class MosaicPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def predict_with_attention(self, batch: dict[str, Tensor]) -> tuple[Tensor, list[Tensor]]:
-        """Normalised action (B, action_dim) for the current frame, and per-layer attention weights.
+        """`select_action`, and the per-layer attention weights of the frame the current chunk was predicted from.
 
-        Weights: one tensor per layer, (B, heads, 1, h*w, h*w + n_demo_frames*h*w): each query location of the
-        current frame over [its own h*w tokens, then the demo tokens frame by frame], row-major over (h, w);
+        Weights: one tensor per layer, (B, heads, 1, h*w, h*w + n_demo_frames*h*w): each query location of that
+        frame over [its own h*w tokens, then the demo tokens frame by frame], row-major over (h, w);
         `policy.model.feature_shape` gives (C, h, w).
         """
-        return self._act(batch, return_weights=True)
+        return self._next_action(batch, return_weights=True), self._last_weights
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
-        return self._act(batch)[0].unsqueeze(1)
+        """Normalised targets (B, action_chunk, action_dim) for the current frame and the steps after it."""
+        return self._act(batch)[0]
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
-        """Normalised action (B, action_dim) for the current frame; the postprocessor unnormalises it."""
-        return self._act(batch)[0]
+        """Normalised action (B, action_dim) for this control step; the postprocessor unnormalises it.
+
+        The policy runs on every `action_chunk`-th call and hands out its chunk's targets in order in between.
+        """
+        return self._next_action(batch)
+
+    def _next_action(self, batch: dict[str, Tensor], return_weights: bool = False) -> Tensor:
+        if not self._action_queue:
+            chunk, self._last_weights = self._act(batch, return_weights)
+            self._action_queue.extend(chunk.transpose(0, 1))  # (B, action_dim) per step
+        return self._action_queue.popleft()
 
     def _act(self, batch: dict[str, Tensor], return_weights: bool = False) -> tuple[Tensor, list[Tensor]]:
+        """Normalised targets (B, action_chunk, action_dim) from the current frame, and attention weights."""
         if self._demo_cache is None:
             demo = next((batch[key] for key in (DEMO_FRAMES, OBS_DEMO) if key in batch), None)
             if demo is None:
@@ -307,7 +361,7 @@ class MosaicPolicy(PreTrainedPolicy):
             state = state[:, -1]
         distribution = self.model.action_distribution(embeddings, state)
         action = distribution.sample() if self.config.action_sampling == "sample" else distribution.mode()
-        return action, weights
+        return action.reshape(action.shape[0], self.config.action_chunk, self.action_dim), weights
 
     def _check_image_size(self, frames: Tensor, what: str) -> None:
         if tuple(frames.shape[-2:]) != self.image_hw or frames.shape[-3] != 3:
@@ -366,10 +420,10 @@ class MosaicPolicy(PreTrainedPolicy):
         self._check_image_size(demo, "demonstration")
         if demo.shape[1] != cfg.n_demo_frames:
             raise ValueError(f"expected {cfg.n_demo_frames} demonstration frames per sample, got {demo.shape[1]}.")
-        actions = batch[ACTION]
-        if actions.dim() == 2:
-            actions = actions.unsqueeze(1)
-        valid = ~batch[f"{ACTION}_is_pad"] if f"{ACTION}_is_pad" in batch else torch.ones(b, t, dtype=torch.bool, device=device)
+        chunks, chunk_valid = self._action_chunks(batch, t)  # (B, T, chunk, A), (B, T, chunk)
+        obs_pad = batch.get(f"{self.camera_key}_is_pad")
+        valid = ~obs_pad.reshape(b, t) if obs_pad is not None else chunk_valid[:, :, 0]  # real observation frames
+        chunk_valid = chunk_valid & valid[:, :, None]
         state = batch.get(OBS_STATE)
         if state is not None and state.dim() == 2:
             state = state.unsqueeze(1)
@@ -378,17 +432,17 @@ class MosaicPolicy(PreTrainedPolicy):
         view1_demo, view1_obs = (self.augment(demo), self.augment(obs)) if augment else (demo, obs)
         online = self.model.encode(self.model.trunk, self.model.attention, view1_demo, view1_obs)
 
-        # Behaviour cloning: every observation frame predicts its action.
+        # Behaviour cloning: every observation frame predicts the chunk of targets that follows it.
         embeddings = self.model.frame_embeddings(online["obs_post"])  # (B, T, E)
-        nll = -self.model.action_distribution(embeddings, state).log_prob(actions).sum(-1)  # (B, T)
-        bc = self._masked_mean(nll, valid)
+        nll = self._chunk_nll(self.model.action_distribution(embeddings, state), chunks)  # (B, T, chunk)
+        bc = self._masked_mean(nll.flatten(1), chunk_valid.flatten(1)) * cfg.action_chunk
 
-        # Inverse dynamics: consecutive embeddings -> the action between them.
+        # Inverse dynamics: two consecutive embeddings -> the targets from the first frame on (its chunk).
         if t > 1:
-            pair_valid = valid[:, :-1] & valid[:, 1:]
+            pair_valid = chunk_valid[:, :-1] & valid[:, 1:, None]
             inverse_in = torch.cat([embeddings[:, :-1], embeddings[:, 1:]], dim=-1)
-            inverse_nll = -self.model.inverse_head(inverse_in).log_prob(actions[:, :-1]).sum(-1)
-            inverse = self._masked_mean(inverse_nll, pair_valid)
+            inverse_nll = self._chunk_nll(self.model.inverse_head(inverse_in), chunks[:, :-1])
+            inverse = self._masked_mean(inverse_nll.flatten(1), pair_valid.flatten(1)) * cfg.action_chunk
         else:
             inverse = torch.zeros(b, device=device)
 
@@ -407,6 +461,29 @@ class MosaicPolicy(PreTrainedPolicy):
         loss = (per_sample * weights).sum()
         info["loss"] = loss.item()
         return loss, info
+
+    def _action_chunks(self, batch: dict[str, Any], n_frames: int) -> tuple[Tensor, Tensor]:
+        """Each observation frame's chunk of targets from the sample's action window, and which are real.
+
+        batch[ACTION]: (B, L, A) 20 Hz actions from the first observation frame on (L = (T-1) * frame_stride +
+        action_chunk under lerobot-train), or (B, A) for a single frame. Positions past the window or padded
+        by LeRobot (past the episode's end) are masked.
+        """
+        actions = batch[ACTION]
+        if actions.dim() == 2:
+            actions = actions.unsqueeze(1)
+        b, length = actions.shape[:2]
+        pad = batch.get(f"{ACTION}_is_pad")
+        real = ~pad.reshape(b, length) if pad is not None else torch.ones(b, length, dtype=torch.bool, device=actions.device)
+        index = torch.tensor(self.config.action_window_indices()[:n_frames], device=actions.device)  # (T, chunk)
+        inside = index < length
+        index = index.clamp(max=length - 1)
+        return actions[:, index], real[:, index] & inside
+
+    def _chunk_nll(self, distribution: DiscretizedLogisticMixture, chunks: Tensor) -> Tensor:
+        """Negative log-likelihood per target (B, T, chunk), summed over action dimensions."""
+        flat = chunks.flatten(-2)  # (B, T, chunk * A), the head's layout
+        return -distribution.log_prob(flat).reshape(chunks.shape).sum(-1)
 
     @staticmethod
     def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
@@ -450,7 +527,7 @@ class MosaicPolicy(PreTrainedPolicy):
         """EMA step of the target encoder and projectors; lerobot-train calls this after every optimizer step."""
         if self.config.contrastive == "off":
             return
-        momentum = ema_momentum(int(self.ema_step), self.config.ema_total_steps, self.config.ema_momentum)
+        momentum = ema_momentum(int(self.ema_step), self.ema_total_steps, self.config.ema_momentum)
         ema_update(self.target_trunk, self.model.trunk, momentum)
         if self.target_attention is not None:
             ema_update(self.target_attention, self.model.attention, momentum)

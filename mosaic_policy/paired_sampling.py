@@ -10,6 +10,10 @@ the training step still had to wait for them.
 "Instance": the collector seeds episode k of every variation with the same seed for both robots, so the
 agent and demonstrator episodes with the same rank within their variation show the same scene instance; a
 demonstrator episode of another rank is chosen whenever the variation has one.
+
+Data fractions: when training uses a subset of the agent episodes (lerobot-train's `--dataset.episodes`, the
+paper's 25/50/75% runs), the demonstrator side is restricted to the same instances (the same ranks within
+each variation), so both robots see the same share of the data.
 """
 
 import threading
@@ -71,6 +75,7 @@ class PairedDemoSampler:
         image_key: str,
         n_frames: int,
         agent_meta=None,
+        agent_episodes: list[int] | None = None,
         threads: int = 2,
         prefetch_batches: int = 2,
         seed: int = 0,
@@ -111,7 +116,7 @@ class PairedDemoSampler:
         self.agent_rank: dict[int, int] = {}
         self.agent_task_frequency: dict[str, float] = {}
         if agent_meta is not None:
-            self._check_agent(agent_meta)
+            self._check_agent(agent_meta, agent_episodes)
 
         self.threads = threads
         self.prefetch_batches = prefetch_batches
@@ -138,14 +143,21 @@ class PairedDemoSampler:
         self.__dict__.update(state)
         self._init_runtime()
 
-    def _check_agent(self, agent_meta) -> None:
+    def _check_agent(self, agent_meta, agent_episodes: list[int] | None = None) -> None:
         agent_image = tuple(agent_meta.features.get(self.image_key, {}).get("shape", ()))
         if agent_image and agent_image != self.image_shape:
             raise DemoDatasetError(
                 f"{self.image_key} is {agent_image} in the agent dataset but {self.image_shape} in the "
                 f"demonstrator dataset {self.repo_id!r}; collect both at the same image size."
             )
-        agent_tasks = _episode_tasks(agent_meta)
+        all_agent_tasks = _episode_tasks(agent_meta)
+        all_ranks = _episode_ranks(all_agent_tasks)
+        selected = range(len(all_agent_tasks)) if agent_episodes is None else sorted(set(agent_episodes))
+        if any(not 0 <= e < len(all_agent_tasks) for e in selected):
+            raise DemoDatasetError(
+                f"--dataset.episodes names episodes outside 0..{len(all_agent_tasks) - 1} of the agent dataset."
+            )
+        agent_tasks = [all_agent_tasks[e] for e in selected]
         missing = sorted(set(agent_tasks) - set(self.episodes_by_task))
         if missing:
             shown = "; ".join(repr(t) for t in missing[:3]) + (" ..." if len(missing) > 3 else "")
@@ -154,10 +166,21 @@ class PairedDemoSampler:
                 f"agent dataset: {shown}. Collect them for the demonstrator robot or train on a subset "
                 "(--dataset.episodes=[...])."
             )
-        self.agent_rank = dict(enumerate(_episode_ranks(agent_tasks)))
+        self.agent_rank = {e: all_ranks[e] for e in selected}
+        if agent_episodes is not None:  # the same instances on the demonstrator side
+            ranks_by_task: dict[str, set[int]] = {}
+            for e in selected:
+                ranks_by_task.setdefault(all_agent_tasks[e], set()).add(all_ranks[e])
+            restricted = {
+                task: [(ep, rank) for ep, rank in self.episodes_by_task[task] if rank in ranks]
+                for task, ranks in ranks_by_task.items()
+            }
+            # a variation whose chosen instances the demonstrator lacks keeps what it has rather than nothing
+            self.episodes_by_task = {task: eps or self.episodes_by_task[task] for task, eps in restricted.items()}
+        all_lengths = list(agent_meta.episodes["length"])
         lengths = Counter()
-        for task, length in zip(agent_tasks, agent_meta.episodes["length"], strict=True):
-            lengths[task] += length
+        for e in selected:
+            lengths[all_agent_tasks[e]] += all_lengths[e]
         total = sum(lengths.values())
         self.agent_task_frequency = {task: n / total for task, n in lengths.items()}
 

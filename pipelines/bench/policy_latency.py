@@ -1,9 +1,10 @@
-"""Benchmark: `select_action` latency with a cached demonstration (goal: <= 15 ms median on a 2-core CPU).
+"""Benchmark: latency of one policy query with a cached demonstration (goal: <= 15 ms median on a 2-core CPU).
 
     python -m pipelines.bench.policy_latency [--calls 100] [--threads 1 2]
 
 Paper settings (2 attention layers, 100x180). `set_demo` runs once (its time is printed too); every call
-then runs the trunk on the current frame and attends to the cached demo keys/values.
+then runs the trunk on the current frame and attends to the cached demo keys/values, predicting a chunk of
+targets; `select_action` makes one such query every `action_chunk` (5) control steps.
 """
 
 import argparse
@@ -27,18 +28,18 @@ def measure(threads: int, calls: int, layers: int, height: int, width: int) -> N
     observation = {IMAGE_KEY: torch.rand(1, 3, height, width), "observation.state": torch.randn(1, 10)}
     with torch.inference_mode():
         for _ in range(10):
-            policy.select_action(observation)
+            policy.predict_action_chunk(observation)
         times, cpu_times = [], []
-        for _ in range(calls):
+        for _ in range(calls):  # one policy query (select_action runs one per action_chunk control steps)
             start, cpu_start = time.perf_counter(), time.thread_time()
-            policy.select_action(observation)
+            policy.predict_action_chunk(observation)
             times.append((time.perf_counter() - start) * 1e3)
             cpu_times.append((time.thread_time() - cpu_start) * 1e3)
     times.sort()
     # With one thread, the calling thread's CPU time is the work itself, whatever else shares the cores.
     cpu_note = f", CPU time median {statistics.median(cpu_times):.1f} ms" if threads == 1 else ""
     print(
-        f"{threads} thread(s), {layers} layers: select_action median {statistics.median(times):.1f} ms, "
+        f"{threads} thread(s), {layers} layers: one query median {statistics.median(times):.1f} ms, "
         f"p90 {times[int(0.9 * len(times))]:.1f} ms, min {times[0]:.1f} ms over {calls} calls; "
         f"set_demo once {set_demo_ms:.0f} ms{cpu_note}"
     )

@@ -50,11 +50,15 @@ def main():
         agent_root, demo_root = write_pair(Path(tmp), args.episodes, args.length, 100, 180)
         print(f"wrote 2 x {4 * args.episodes * args.length} frames at 100x180 in {time.perf_counter() - start:.1f} s")
 
-        deltas = [i / 20 for i in range(7)]
+        from mosaic_policy import MosaicConfig
+
+        config = MosaicConfig()  # the paper's window: 7 frames 0.25 s apart, the 35 actions under them
+        frames = [i / 20 for i in config.observation_delta_indices]
+        actions = [i / 20 for i in config.action_delta_indices]
         agent = LeRobotDataset(
             "mosaic/bench_panda",
             root=agent_root,
-            delta_timestamps={IMAGE_KEY: deltas, "observation.state": deltas, "action": deltas},
+            delta_timestamps={IMAGE_KEY: frames, "observation.state": frames, "action": actions},
             return_uint8=True,
         )
         rng = np.random.default_rng(0)

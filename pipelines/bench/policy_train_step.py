@@ -37,11 +37,12 @@ def paper_config(height: int, width: int, **overrides):
 
 def synthetic_batch(config, batch_size: int, height: int, width: int) -> dict:
     t, d = config.train_obs_frames, config.n_demo_frames
+    n_actions = len(config.action_delta_indices)  # the window's 20 Hz actions, as lerobot-train loads them
     return {
         IMAGE_KEY: torch.rand(batch_size, t, 3, height, width),
         "observation.state": torch.randn(batch_size, t, 10),
-        "action": torch.rand(batch_size, t, 7) * 2 - 1,
-        "action_is_pad": torch.zeros(batch_size, t, dtype=torch.bool),
+        "action": torch.rand(batch_size, n_actions, 7) * 2 - 1,
+        "action_is_pad": torch.zeros(batch_size, n_actions, dtype=torch.bool),
         "demo_frames": torch.rand(batch_size, d, 3, height, width),
         "task": [f"variation {i % 4}" for i in range(batch_size)],
     }

@@ -96,6 +96,8 @@ def small_config(height=HEIGHT, width=WIDTH, **overrides):
         },
         output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
         train_obs_frames=3,
+        frame_stride=2,
+        action_chunk=2,
         n_attention_layers=2,
         n_attention_heads=2,
         embed_dim=32,
@@ -112,11 +114,12 @@ def small_config(height=HEIGHT, width=WIDTH, **overrides):
 def random_batch(config, batch_size=4, height=HEIGHT, width=WIDTH, seed=0):
     g = torch.Generator().manual_seed(seed)
     t, d = config.train_obs_frames, config.n_demo_frames
+    n_actions = len(config.action_delta_indices)  # the 20 Hz actions of the whole window, as lerobot-train gives
     return {
         IMAGE_KEY: torch.rand(batch_size, t, 3, height, width, generator=g),
         "observation.state": torch.randn(batch_size, t, 10, generator=g),
-        "action": torch.rand(batch_size, t, 7, generator=g) * 2 - 1,
-        "action_is_pad": torch.zeros(batch_size, t, dtype=torch.bool),
+        "action": torch.rand(batch_size, n_actions, 7, generator=g) * 2 - 1,
+        "action_is_pad": torch.zeros(batch_size, n_actions, dtype=torch.bool),
         "demo_frames": torch.rand(batch_size, d, 3, height, width, generator=g),
         "task": [variation_description(i % 2) for i in range(batch_size)],
     }

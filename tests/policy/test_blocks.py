@@ -84,6 +84,35 @@ def test_discretized_logistic_bins_sum_to_one_and_samples_follow_the_mixture():
     assert torch.allclose(samples, many.snap(samples))  # samples are bin centres
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_discretized_logistic_edge_bins_absorb_both_tails_in_float32(dtype):
+    """256 bins, a component far past either edge: the edge bin holds (almost) all of its mass.
+
+    Gripper labels and every per-dimension min/max sit exactly on +-1 after MIN_MAX normalisation.
+    """
+    num_bins = 256
+    centres = torch.linspace(-1, 1, num_bins, dtype=dtype)
+    for mean, edge in ((-1.5, -1.0), (1.5, 1.0)):
+        dist = DiscretizedLogisticMixture(
+            torch.zeros(num_bins, 1, dtype=dtype),
+            torch.full((num_bins, 1), mean, dtype=dtype),
+            torch.full((num_bins, 1), math.log(0.018), dtype=dtype),
+            num_bins=num_bins,
+        )
+        log_probs = dist.log_prob(centres)
+        assert log_probs.exp().sum().item() == pytest.approx(1.0, abs=1e-4)
+        edge_log_prob = dist.log_prob(torch.tensor([edge], dtype=dtype).expand(num_bins))[0].item()
+        assert edge_log_prob == pytest.approx(0.0, abs=1e-4)
+    # a mixture inside the range sums to one in float32 too
+    dist = DiscretizedLogisticMixture(
+        torch.tensor([[0.0, 1.0]], dtype=dtype).expand(num_bins, 2),
+        torch.tensor([[-0.97, 0.99]], dtype=dtype).expand(num_bins, 2),
+        torch.tensor([[-4.0, -3.0]], dtype=dtype).expand(num_bins, 2),
+        num_bins=num_bins,
+    )
+    assert dist.log_prob(centres).exp().sum().item() == pytest.approx(1.0, abs=1e-4)
+
+
 # -- attention ---------------------------------------------------------------------------------------------
 
 

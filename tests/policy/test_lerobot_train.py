@@ -74,7 +74,7 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     assert saved.keys() == state.keys()
     assert all(torch.equal(saved[k], state[k]) for k in saved)
     assert int(policy.ema_step) == 2  # update() ran after each optimizer step
-    assert policy.config.ema_total_steps == 2  # the momentum schedule follows --steps without a flag
+    assert policy.config.ema_total_steps is None  # the schedule's length is each run's --steps, never saved
 
     # The saved processors normalise with the dataset stats and unnormalise the action.
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
@@ -110,3 +110,29 @@ def test_lerobot_train_without_demo_dataset_fails_clearly(door_datasets, tmp_pat
     )
     assert result.returncode != 0
     assert "demonstrator dataset 'mosaic/door_sawyer' not found" in result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_fine_tuning_restarts_the_ema_schedule_and_resume_stretches_it(door_datasets, tmp_path, monkeypatch, resume):
+    """A 1000-step checkpoint loaded to train again: fine-tuning starts at the base momentum, not at 1."""
+    from conftest import small_config
+    from lerobot.datasets import LeRobotDatasetMetadata
+
+    from mosaic_policy.contrastive import ema_momentum
+    from mosaic_policy.modeling_mosaic import MosaicPolicy
+
+    agent_root, demo_root = door_datasets
+    trained = MosaicPolicy(small_config())
+    trained.ema_step.fill_(1000)
+    trained.save_pretrained(tmp_path / "ckpt")
+    argv = ["lerobot-train", "--policy.path=ckpt", "--steps=3000"] + (["--resume=true"] if resume else [])
+    monkeypatch.setattr(sys, "argv", argv)
+    config = small_config(demo_repo_id="mosaic/door_sawyer", demo_root=str(demo_root), demo_loader_threads=0)
+    meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    policy = MosaicPolicy.from_pretrained(tmp_path / "ckpt", config=config, dataset_meta=meta)
+    assert policy.ema_total_steps == 3000
+    assert int(policy.ema_step) == (1000 if resume else 0)
+    momentum = ema_momentum(int(policy.ema_step), policy.ema_total_steps, config.ema_momentum)
+    assert momentum < 1.0 and (momentum > config.ema_momentum if resume else momentum == config.ema_momentum)
+    # the old behaviour: the schedule saved with the checkpoint had ended, momentum 1 froze the target
+    assert ema_momentum(1000, 1000, config.ema_momentum) == 1.0

@@ -20,7 +20,10 @@ def test_paper_defaults():
     assert (config.n_attention_layers, config.attention_temperature, config.action_bins) == (2, 16.0, 256)
     assert config.contrastive == "both" and config.optimizer_lr == 5e-4
     assert config.bc_loss_weight == config.inverse_loss_weight == config.contrastive_loss_weight == 1.0
-    assert config.observation_delta_indices == list(range(7)) == config.action_delta_indices
+    # the paper's time scale at 20 Hz: 7 frames 0.25 s apart, one query per 5 control steps; images only
+    assert config.observation_delta_indices == [0, 5, 10, 15, 20, 25, 30]
+    assert config.action_delta_indices == list(range(35)) and config.action_chunk == 5
+    assert config.use_state is False
 
 
 @pytest.mark.parametrize(
@@ -41,7 +44,7 @@ def test_shapes_and_dtypes_through_the_model(policy):
     embeddings = policy.model.frame_embeddings(encoded["obs_post"])
     assert embeddings.shape == (4, 3, policy.config.embed_dim)
     dist = policy.model.action_distribution(embeddings, batch["observation.state"])
-    assert dist.means.shape == (4, 3, 7, policy.config.n_mixtures)
+    assert dist.means.shape == (4, 3, 7 * policy.config.action_chunk, policy.config.n_mixtures)
     policy.train()
     loss, info = policy.forward(batch)
     assert loss.dim() == 0 and loss.dtype == torch.float32 and torch.isfinite(loss)
@@ -98,14 +101,21 @@ def test_select_action_uses_the_cached_demo_and_matches_the_training_path(policy
         demo_frames = (video[demo_frame_indices(30, 4)].permute(0, 3, 1, 2).float() / 255).expand(2, -1, -1, -1, -1)
         encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo_frames, frames)
         expected = policy.model.action_distribution(policy.model.frame_embeddings(encoded["obs_post"]), state).mode()
-    for t in range(3):
+    chunk = policy.config.action_chunk
+    assert chunk == 2
+    expected = expected.reshape(2, 3, chunk, 7)
+    # One query per chunk: frame 0's two targets, in order (frame 1 is not looked at), then frame 2's first.
+    for t, (frame, target) in enumerate([(0, 0), (0, 1), (2, 0)]):
         action = policy.select_action({IMAGE_KEY: frames[:, t], "observation.state": state[:, t]})
         assert action.shape == (2, 7) and action.dtype == torch.float32
-        torch.testing.assert_close(action, expected[:, t], atol=2 / 255, rtol=0)
-    action, weights = policy.predict_with_attention({IMAGE_KEY: frames[:, 0], "observation.state": state[:, 0]})
+        torch.testing.assert_close(action, expected[:, frame, target], atol=2 / 255, rtol=0)
+    policy.select_action({IMAGE_KEY: frames[:, 0], "observation.state": state[:, 0]})  # empties the queue
+    action, weights = policy.predict_with_attention({IMAGE_KEY: frames[:, 1], "observation.state": state[:, 1]})
+    torch.testing.assert_close(action, expected[:, 1, 0], atol=2 / 255, rtol=0)
     assert len(weights) == policy.config.n_attention_layers
     assert weights[0].shape == (2, policy.config.n_attention_heads, 1, 8, 8 + 4 * 8)
-    assert policy.predict_action_chunk({IMAGE_KEY: frames[:, 0], "observation.state": state[:, 0]}).shape == (2, 1, 7)
+    chunk_out = policy.predict_action_chunk({IMAGE_KEY: frames[:, 0], "observation.state": state[:, 0]})
+    assert chunk_out.shape == (2, chunk, 7)
     policy.reset()
     assert not policy.has_demo
 

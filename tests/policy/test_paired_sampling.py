@@ -81,3 +81,25 @@ def test_demo_dataset_of_another_image_size_is_a_clear_error(door_datasets, tmp_
     meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
     with pytest.raises(DemoDatasetError, match="same image size"):
         PairedDemoSampler("mosaic/door_sawyer", other, IMAGE_KEY, 4, agent_meta=meta)
+
+
+def test_a_fraction_of_the_agent_episodes_restricts_the_demonstrator_to_the_same_instances(tmp_path):
+    """The paper's 25/50/75% runs: both robots see the same instances (ranks within each variation)."""
+    agent_root = write_dataset(tmp_path / "agent", "mosaic/door_panda", [0, 1], episodes_per_variation=3, length=6)
+    demo_root = write_dataset(tmp_path / "demo", "mosaic/door_sawyer", [0, 1], episodes_per_variation=3, length=6)
+    agent_meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    ranks = dict(zip(range(6), [0, 0, 1, 1, 2, 2]))  # episodes alternate variations 0, 1 per rank
+    selected = [0, 1, 2, 3]  # instances (ranks) 0 and 1 of both variations: two thirds of the data
+    sampler = PairedDemoSampler(
+        "mosaic/door_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent_meta, agent_episodes=selected, threads=0
+    )
+    assert set(sampler.agent_rank) == set(selected)
+    assert {rank for episodes in sampler.episodes_by_task.values() for _, rank in episodes} == {0, 1}
+    tasks = [t[0] for t in agent_meta.episodes["tasks"]]
+    for _ in range(5):
+        frames = sampler.sample([tasks[e] for e in selected], selected)
+        for i, episode in enumerate(selected):
+            _, rank = read_variation_rank(frames[i, 0])
+            assert rank in (0, 1) and rank != ranks[episode]
+    with pytest.raises(DemoDatasetError, match="outside"):
+        PairedDemoSampler("mosaic/door_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent_meta, agent_episodes=[9], threads=0)
