@@ -1,13 +1,17 @@
-"""What acts in an evaluation rollout: a trained MOSAIC checkpoint, an untrained MOSAIC, or the scripted expert.
+"""What acts in an evaluation rollout: a checkpoint of any LeRobot policy type (MOSAIC, ACT, ...), an untrained
+MOSAIC, or the scripted expert.
 
 Every agent is driven by the same loop (:mod:`pipelines.evaluation.rollouts`): `start_episode` once with the
 episode's demonstration, then `act` once per control step on a LeRobot-format observation. A policy goes through
-exactly what `lerobot-eval` uses: LeRobot's `preprocess_observation`, the checkpoint's own pre-processor
-(normalisation with the training set's statistics), `select_action`, and the post-processor.
+exactly what `lerobot-eval` uses: LeRobot's factory for its type, `preprocess_observation`, the checkpoint's own
+pre-processor (normalisation with the training set's statistics), `select_action` (which keeps its own action
+queue for policies that predict chunks, like ACT), and the post-processor. Only a policy with a `set_demo` method
+(MOSAIC) is shown the demonstration; any other one acts without it, so it cannot know which variation to do.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +28,10 @@ BASELINES = ("expert", "untrained")
 """Sanity rows the evaluation can produce without a checkpoint."""
 
 CAMERA_KEY = "observation.images.agentview"
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+PROVIDED = f"{CAMERA_KEY} (3xHxW, any size) and {STATE_KEY} ({STATE_DIM},)"
+"""What the MOSAIC environments give a policy, for error messages."""
 
 
 class EvaluationError(ValueError):
@@ -39,11 +47,13 @@ class AgentSpec:
     path: str | None = None
     image_hw: tuple[int, int] = (IMAGE_HEIGHT, IMAGE_WIDTH)
     record_attention: bool = False
+    takes_demo: bool = True  # a policy with `set_demo`; one without acts blind to the demonstration
+    expert_variation: int | None = None  # the expert pursues this variation, not the episode's (a demo-blind agent)
 
     @property
     def needs_demo(self) -> bool:
-        """The scripted expert reads the goal from the simulator, not from a demonstration."""
-        return self.kind != "expert"
+        """The scripted expert reads the goal from the simulator, and a policy without `set_demo` cannot use one."""
+        return self.kind != "expert" and self.takes_demo
 
     @property
     def needs_camera(self) -> bool:
@@ -70,7 +80,7 @@ class Agent(Protocol):
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
-    """The folder holding a MOSAIC policy's config.json: the path itself, its `pretrained_model`, or a
+    """The folder holding a LeRobot policy's config.json: the path itself, its `pretrained_model`, or a
     lerobot-train run's `checkpoints/last/pretrained_model`."""
     path = Path(path).expanduser()
     if not path.exists():
@@ -84,30 +94,96 @@ def resolve_checkpoint(path: str | Path) -> Path:
             f"{str(path)!r} is not a LeRobot policy checkpoint (no config.json): pass a folder such as "
             "outputs/train/<run>/checkpoints/last/pretrained_model"
         )
-    try:
-        policy_type = json.loads(config_file.read_text()).get("type")
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-        raise EvaluationError(f"{config_file} is not a readable policy config (corrupt JSON)") from None
-    if policy_type != "mosaic":
-        raise EvaluationError(
-            f"{str(candidate)!r} holds a {policy_type!r} policy, not a MOSAIC policy: mosaic-eval evaluates "
-            "checkpoints trained with --policy.type=mosaic"
-        )
+    read_config(candidate)
     if not (candidate / "model.safetensors").is_file():
         raise EvaluationError(f"{str(candidate)!r} has no model.safetensors: the checkpoint is incomplete")
     return candidate
 
 
+def read_config(checkpoint: Path) -> dict[str, Any]:
+    """config.json of a resolved checkpoint, with a policy type."""
+    config_file = checkpoint / "config.json"
+    try:
+        config = json.loads(config_file.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise EvaluationError(f"{config_file} is not a readable policy config (corrupt JSON)") from None
+    if not isinstance(config, dict) or not isinstance(config.get("type"), str):
+        raise EvaluationError(f"{config_file} names no policy type: pass a checkpoint written by lerobot-train")
+    return config
+
+
+@functools.cache
+def register_policy_types() -> None:
+    """Make every policy type a config.json may name known to LeRobot's factory, as lerobot-eval does: LeRobot's
+    own, MOSAIC, and the installed `lerobot_policy_*` plugins."""
+    import logging
+
+    import lerobot.policies  # noqa: F401  (registers LeRobot's config classes)
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    import mosaic_policy  # noqa: F401
+
+    level = logging.getLogger().level
+    logging.getLogger().setLevel(logging.CRITICAL)  # a broken unrelated plugin must not print a traceback here
+    try:
+        register_third_party_plugins()
+    finally:
+        logging.getLogger().setLevel(level)
+
+
+def policy_class(checkpoint: Path, policy_type: str) -> type:
+    """The LeRobot policy class of ``policy_type`` (its modeling module is imported, its weights are not read)."""
+    from lerobot.policies.factory import get_policy_class
+
+    register_policy_types()
+    try:
+        return get_policy_class(policy_type)
+    except ValueError:
+        raise EvaluationError(
+            f"{str(checkpoint)!r} holds a {policy_type!r} policy that LeRobot does not know: install the package "
+            "that registers it (a lerobot_policy_* plugin)"
+        ) from None
+    except ImportError as error:
+        raise EvaluationError(
+            f"the {policy_type!r} policy cannot be imported ({error}): install its dependencies"
+        ) from None
+
+
+def takes_demo(cls: type) -> bool:
+    """Whether a policy class is conditioned on a demonstration (MOSAIC's `set_demo`)."""
+    return callable(getattr(cls, "set_demo", None))
+
+
 def checkpoint_image_hw(path: Path, config: dict[str, Any]) -> tuple[int, int]:
-    """(H, W) of the camera a checkpoint at ``path`` was trained on, from its config.json content."""
-    features = config.get("input_features", {})
-    camera = features.get(CAMERA_KEY) or next(
-        (feature for feature in features.values() if feature.get("type") == "VISUAL"), None
-    )
+    """(H, W) of the camera a checkpoint at ``path`` was trained on, after checking that its inputs and action are
+    what the MOSAIC environments provide (the scene renders at the checkpoint's camera size, so any size fits)."""
+    features = config.get("input_features") or {}
+    unknown = sorted(set(features) - {CAMERA_KEY, STATE_KEY})
+    if unknown:
+        raise EvaluationError(
+            f"{path} expects input {', '.join(unknown)} but the MOSAIC tasks provide only {PROVIDED}: "
+            "train the policy on a mosaic-data dataset"
+        )
+    camera = features.get(CAMERA_KEY)
     if camera is None:
-        raise EvaluationError(f"{path} has no camera input feature; mosaic-eval renders {CAMERA_KEY}")
-    shape = camera["shape"]
-    return int(shape[-2]), int(shape[-1])
+        raise EvaluationError(
+            f"{path} has no {CAMERA_KEY} input; mosaic-eval renders {CAMERA_KEY}: train the policy on a mosaic-data dataset"
+        )
+    if len(camera["shape"]) != 3 or camera["shape"][0] != 3:
+        raise EvaluationError(f"{path} expects {CAMERA_KEY} of shape {tuple(camera['shape'])}; the tasks render 3xHxW RGB")
+    state = features.get(STATE_KEY)
+    if state is not None and tuple(state["shape"]) != (STATE_DIM,):
+        raise EvaluationError(
+            f"{path} expects {STATE_KEY} of shape {tuple(state['shape'])} but the MOSAIC tasks give ({STATE_DIM},): "
+            "train the policy on a mosaic-data dataset"
+        )
+    action = (config.get("output_features") or {}).get(ACTION_KEY)
+    if action is None or tuple(action["shape"]) != (ACTION_DIM,):
+        shape = tuple(action["shape"]) if action else None
+        raise EvaluationError(
+            f"{path} outputs action of shape {shape}; the MOSAIC tasks take ({ACTION_DIM},) end-effector targets"
+        )
+    return int(camera["shape"][-2]), int(camera["shape"][-1])
 
 
 # ---------------------------------------------------------------------------------------------- agents
@@ -121,7 +197,7 @@ def workspace_action_stats() -> dict[str, dict[str, torch.Tensor]]:
 
 
 class PolicyAgent:
-    """A MOSAIC policy with its LeRobot pre/post-processors (a checkpoint, or untrained for the sanity row)."""
+    """A LeRobot policy with its pre/post-processors (a checkpoint of any type, or MOSAIC untrained for the sanity row)."""
 
     def __init__(self, spec: AgentSpec, policy, preprocessor, postprocessor) -> None:
         self.spec = spec
@@ -139,15 +215,16 @@ class PolicyAgent:
 
     @classmethod
     def _from_checkpoint(cls, spec: AgentSpec) -> PolicyAgent:
+        from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import make_pre_post_processors
 
-        from mosaic_policy import MosaicConfig
-        from mosaic_policy.modeling_mosaic import MosaicPolicy
-
         path = resolve_checkpoint(spec.path)
-        config = MosaicConfig.from_pretrained(path)
+        register_policy_types()
+        config = PreTrainedConfig.from_pretrained(path)
         config.device = "cpu" if not torch.cuda.is_available() else config.device
-        policy = MosaicPolicy.from_pretrained(path, config=config)
+        if getattr(config, "pretrained_backbone_weights", None):
+            config.pretrained_backbone_weights = None  # the checkpoint holds the trained backbone: no ImageNet download
+        policy = policy_class(path, config.type).from_pretrained(path, config=config)
         preprocessor, postprocessor = make_pre_post_processors(
             config,
             pretrained_path=str(path),
@@ -178,10 +255,19 @@ class PolicyAgent:
         preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=workspace_action_stats())
         return cls(spec, policy, preprocessor, postprocessor)
 
+    @property
+    def attention_hw(self) -> tuple[int, int] | None:
+        """(h, w) of the token grid the recorded attention covers; None for a policy without attention maps."""
+        if not self.spec.record_attention or not hasattr(self.policy, "predict_with_attention"):
+            return None
+        return tuple(self.policy.model.feature_shape[1:])
+
     def start_episode(self, env: MosaicGymEnv, demo: Demonstration | None) -> None:
+        self.policy.reset()  # also empties an action-chunk queue (ACT) left from the last episode
+        if not self.spec.takes_demo:
+            return
         if demo is None:
-            raise EvaluationError("a MOSAIC policy needs a demonstration for every episode")
-        self.policy.reset()
+            raise EvaluationError("a demonstration-conditioned policy needs a demonstration for every episode")
         self.policy.set_demo(demo.frames)
 
     @torch.no_grad()
@@ -191,7 +277,7 @@ class PolicyAgent:
         batch = preprocess_observation(observation)
         batch["task"] = [env.task_description]
         batch = self.preprocessor(batch)
-        if self.spec.record_attention:
+        if self.attention_hw is not None:
             action, weights = self.policy.predict_with_attention(batch)
             attention = [layer[0, :, 0].float().cpu().numpy() for layer in weights]
         else:
@@ -201,7 +287,10 @@ class PolicyAgent:
 
 
 class ExpertAgent:
-    """The task's scripted expert for the agent's robot, acting through the same loop (the sanity row)."""
+    """The task's scripted expert for the agent's robot, acting through the same loop (the sanity row).
+
+    With ``spec.expert_variation`` it pursues that variation whatever the episode's: an agent that ignores the
+    demonstration, which the confusion matrix must show as one column (tested)."""
 
     def __init__(self, spec: AgentSpec) -> None:
         self.spec = spec
@@ -210,7 +299,7 @@ class ExpertAgent:
     def start_episode(self, env: MosaicGymEnv, demo: Demonstration | None) -> None:
         from mosaic_data.experts import make_expert
 
-        self._expert = make_expert(env.task_env)
+        self._expert = make_expert(env.task_env, variation=self.spec.expert_variation)
 
     def act(self, observation: dict[str, Any], env: MosaicGymEnv) -> AgentStep:
         return AgentStep(action=np.asarray(self._expert.act(), dtype=np.float64))

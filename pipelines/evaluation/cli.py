@@ -2,11 +2,14 @@
 
     mosaic-eval --policy.path=outputs/train/door/checkpoints/last/pretrained_model --task door
     mosaic-eval --baseline expert --baseline untrained --task all --episodes-per-variation 10
+    mosaic-eval --policy.path=outputs/train/door_act/checkpoints/last/pretrained_model --task door   # any LeRobot type
 
 For every episode: a fresh demonstration of the variation by the demonstrator's (Sawyer's) expert on another
 instance (or one drawn from ``--demo-dataset``), a fresh Panda instance, the policy's rollout up to the task's
-horizon, success from the environment. Prints success per variation and per task (mean +- std), writes JSON
-and Markdown, optionally a rerun recording with the policy's attention.
+horizon, success from the environment, and which variation's goal the agent reached. Prints success per
+variation and per task (mean +- std) and the share of episodes that did the wrong variation, writes JSON and
+Markdown (with a confusion matrix per task) and a heat map PNG per task, optionally a rerun recording with the
+policy's attention.
 
 Exit status: 0 when the evaluation ran, 2 on bad input (one line naming the fix), 130 when interrupted.
 """
@@ -35,8 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--policy.path", dest="policy_paths", action="append", default=[], metavar="DIR",
-        help="MOSAIC checkpoint (a lerobot-train pretrained_model folder or run folder); repeat it for several "
-        "checkpoints of one recipe (e.g. training seeds): the table then shows mean +- std over checkpoints",
+        help="policy checkpoint of any LeRobot type that sees the task camera and state, e.g. MOSAIC or ACT (a "
+        "lerobot-train pretrained_model folder or run folder); repeat it for several checkpoints of one recipe (e.g. "
+        "training seeds): checkpoints of one policy type form one row, mean +- std over them, confusion matrices summed",
     )
     parser.add_argument(
         "--baseline", action="append", default=[], choices=BASELINES,
@@ -92,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from .confusion import write_heat_maps
     from .plan import EvaluationPlan
     from .recording import EvaluationRecording
     from .report import print_table, summarize, timing, write_reports
@@ -127,6 +132,11 @@ def run(args: argparse.Namespace) -> int:
         "episodes": [result.summary() for result in results],
     }
     json_path, markdown_path = write_reports(output, report)
+    try:
+        heat_maps = write_heat_maps(json_path.parent, tables)
+    except ImportError:  # the results are written: a missing plotting library must not lose them
+        heat_maps = []
+        print("mosaic-eval: no confusion heat maps: matplotlib is not installed (pip install matplotlib)", file=sys.stderr)
     print(print_table(tables))
     figures = report["timing"]
     print(
@@ -134,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
         f"worker(s): {figures['steps_per_s']} steps/s ({figures['steps_per_s_per_worker']} per worker, "
         f"agent {figures['act_ms_per_step']} ms/step)"
     )
-    print(f"wrote {json_path} and {markdown_path}" + (f", rerun recording {args.rerun}" if args.rerun else ""))
+    maps = "".join(f", {path.name}" for path in heat_maps[:3]) + (f" and {len(heat_maps) - 3} more" if len(heat_maps) > 3 else "")
+    print(f"wrote {json_path}, {markdown_path}{maps}" + (f", rerun recording {args.rerun}" if args.rerun else ""))
     return 0
 
 

@@ -1,24 +1,33 @@
 """What an evaluation runs: its agents, its episodes (with their seeds) and its demo source, checked up front.
 
 Every bad input is found here, before any worker starts: unknown task, variation out of range, a checkpoint
-that is not a MOSAIC policy, a demo dataset that lacks a variation or has another image size.
+of a policy type LeRobot does not know or whose inputs the environments do not provide, a demo dataset that
+lacks a variation or has another image size.
+
+Checkpoints of one policy type form one agent (e.g. a recipe trained with several seeds: mean +- std over
+them), named by the type: MOSAIC checkpoints are the row "mosaic", ACT ones "act".
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
 from mosaic_data.tasks import select_variations
 from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
 
-from .agents import AgentSpec, EvaluationError, checkpoint_image_hw, resolve_checkpoint
+from .agents import (
+    AgentSpec,
+    EvaluationError,
+    checkpoint_image_hw,
+    policy_class,
+    read_config,
+    resolve_checkpoint,
+    takes_demo,
+)
 from .demo_sources import DatasetDemoSource, DemoSourceSpec
 from .rollouts import MAX_EPISODES_PER_VARIATION, EpisodeSpec, episode_seeds
-
-POLICY_GROUP = "mosaic"
 
 
 @dataclass
@@ -55,10 +64,12 @@ class EvaluationPlan:
         n_demo_frames = 4
         for path in args.policy_paths:
             checkpoint = resolve_checkpoint(path)
-            config = json.loads((checkpoint / "config.json").read_text())
-            n_demo_frames = config.get("n_demo_frames", 4)
-            spec = AgentSpec("policy", str(path), str(checkpoint), checkpoint_image_hw(checkpoint, config), record)
-            groups.setdefault(POLICY_GROUP, {})[len(agents)] = str(path)
+            config = read_config(checkpoint)
+            image_hw = checkpoint_image_hw(checkpoint, config)
+            with_demo = takes_demo(policy_class(checkpoint, config["type"]))
+            n_demo_frames = config.get("n_demo_frames", n_demo_frames) if with_demo else n_demo_frames
+            spec = AgentSpec("policy", str(path), str(checkpoint), image_hw, record, takes_demo=with_demo)
+            groups.setdefault(config["type"], {})[len(agents)] = str(path)
             agents.append(spec)
         default_hw = args.image_size or (agents[0].image_hw if agents else (IMAGE_HEIGHT, IMAGE_WIDTH))
         for baseline in dict.fromkeys(args.baseline):
@@ -79,6 +90,8 @@ class EvaluationPlan:
                     source.check_covers(task, variations)
             demo_source = DemoSourceSpec(dataset=str(root))
 
+        if not any(agent.needs_demo for agent in agents):
+            n_demo_frames = 0  # the recording shows no "frames the policy conditions on" panels
         plan = cls(tasks, agents, groups, demo_source, args.episodes_per_variation, args.seed, n_demo_frames=n_demo_frames, max_steps=args.max_steps)
         recorded_agents = {min(members) for members in groups.values()}
         for agent_index in range(len(agents)):

@@ -4,7 +4,8 @@ An *agent* is one row family: a set of checkpoints (e.g. the same recipe trained
 scripted expert, or the untrained policy. For each agent and variation the success rate is the mean over its
 episodes; the "+-" is the standard deviation over episodes (of the 0/1 outcomes) and, when the agent has
 several checkpoints, also over the checkpoints' own success rates. A task's rate is the mean over all its
-episodes (every variation has the same number), with the same two deviations.
+episodes (every variation has the same number), with the same two deviations. Each task row also carries its
+confusion matrix (which variation the agent did, :mod:`.confusion`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from mosaic_data.atomic_files import write_bytes_atomically
 from mosaic_data.collection.metadata import write_json_atomically
 
+from .confusion import confusion_markdown, confusion_matrix, wrong_variation_text
 from .rollouts import EpisodeResult
 
 
@@ -64,7 +66,11 @@ def summarize(results: list[EpisodeResult], agent_groups: dict[str, dict[int, st
                     {"task": task, "variation": variation, "description": of_variation[0].description}
                     | _cell(of_variation, members).__dict__
                 )
-            per_task.append({"task": task, "variations": len({r.variation for r in of_task})} | _cell(of_task, members).__dict__)
+            per_task.append(
+                {"task": task, "variations": len({r.variation for r in of_task})}
+                | _cell(of_task, members).__dict__
+                | {"confusion": confusion_matrix(of_task, members)}
+            )
         tables[name] = {
             "checkpoints": list(members.values()),
             "per_variation": per_variation,
@@ -111,6 +117,7 @@ def markdown(tables: dict[str, Any], settings: dict[str, Any]) -> str:
         "\n+- is the standard deviation over checkpoints when an agent has several, else over episodes. "
         f"Seeds: base {settings['seed']}; demonstrations: {settings['demo_source']}.\n"
     )
+    lines.append(confusion_markdown(tables))
     return "".join(lines)
 
 
@@ -123,7 +130,8 @@ def _cell_text(cell: dict[str, Any] | None) -> str:
 
 
 def print_table(tables: dict[str, Any]) -> str:
-    """The per-task (and, for one task, per-variation) table as plain text for the terminal."""
+    """The per-task (and, for one task, per-variation) table as plain text for the terminal, with the share of
+    episodes per task in which the agent did another variation than the one demonstrated."""
     agents = list(tables)
     first = tables[agents[0]]
     rows = [("", *agents)]
@@ -132,6 +140,8 @@ def print_table(tables: dict[str, Any]) -> str:
             rows.append((f"{row['task']} {row['variation']}", *(_cell_text(tables[a]["per_variation"][index]) for a in agents)))
     for index, row in enumerate(first["per_task"]):
         rows.append((f"{row['task']} (all)", *(_cell_text(tables[a]["per_task"][index]) for a in agents)))
+    for index, row in enumerate(first["per_task"]):
+        rows.append((f"{row['task']} wrong variation", *(wrong_variation_text(tables[a]["per_task"][index]) for a in agents)))
     if len(first["per_task"]) > 1:
         rows.append(("all tasks", *(_cell_text(tables[a]["overall"]) for a in agents)))
     widths = [max(len(str(row[i])) for row in rows) for i in range(len(rows[0]))]

@@ -6,6 +6,8 @@ Seeds (see :func:`episode_seeds`): episode ``e`` of ``variation`` puts the agent
 the one the agent faces. Everything an episode does depends only on its seeds (torch's generator is re-seeded
 per episode), so results do not depend on the number of workers or on which worker runs an episode. The
 default base, 10^9, is far from the seeds `mosaic-data collect` uses for training data (base 0).
+
+Every episode also records which variation the agent *achieved* (:class:`GoalTracker`), for the confusion matrix.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import torch
 
 from mosaic_data.envs import MosaicGymEnv
 from mosaic_data.tasks import get_task_class
+from mosaic_data.tasks.base import MosaicTaskEnv
 
 from .agents import Agent, AgentSpec, build_agent
 from .demo_sources import DemoSourceSpec, build_demo_source
@@ -59,6 +62,35 @@ class EpisodeRecording:
     feature_hw: tuple[int, int] | None = None
 
 
+class GoalTracker:
+    """Which variation's goal the agent reached: all variations of a task share the scene, so every variation's
+    success test runs after each step (no rendering: microseconds). A goal counts only when it becomes reached
+    during the episode, never one that already holds in the start state (a drawer to close starts open, which
+    may satisfy another variation's test)."""
+
+    def __init__(self, task_env: MosaicTaskEnv) -> None:
+        self.task_env = task_env
+        self._held = self._goals()
+        self.first_step: dict[int, int] = {}  # variation -> step at which its goal was first reached
+
+    def _goals(self) -> list[bool]:
+        return [self.task_env.check_success(variation=j) for j in range(len(self.task_env.variations))]
+
+    def update(self, step: int) -> None:
+        for variation, held in enumerate(self._goals()):
+            if held and not self._held[variation]:
+                self.first_step.setdefault(variation, step)
+            self._held[variation] = held
+
+    def achieved(self, own: int, success: bool) -> int | None:
+        """Its own variation on success (the episode ends there), else the first other variation whose goal was
+        reached (lowest index on a tie), else None."""
+        if success:
+            return own
+        others = sorted((step, variation) for variation, step in self.first_step.items() if variation != own)
+        return others[0][1] if others else None
+
+
 @dataclass
 class EpisodeResult:
     agent_index: int
@@ -70,6 +102,7 @@ class EpisodeResult:
     seed: int
     demo_seed: int | None
     success: bool
+    achieved_variation: int | None  # whose goal the agent reached (see GoalTracker); None: no variation's
     steps: int
     horizon: int
     final_position: list[float]  # the gripper's grip site at the end (m), where the agent left off
@@ -110,6 +143,7 @@ class RolloutWorker:
             demo = source.demonstration(spec.task, spec.variation, spec.demo_seed, None if record else pick)
             demo_s = time.perf_counter() - start
         observation, info = env.reset(seed=spec.seed)
+        goals = GoalTracker(env.task_env)
         agent.start_episode(env, demo)
         recording = None
         if record:
@@ -126,10 +160,12 @@ class RolloutWorker:
                     recording.attention.append(np.stack([layer.mean(axis=(0, 1)) for layer in step.attention]))
             observation, _, terminated, truncated, info = env.step(step.action)
             steps += 1
+            goals.update(steps)
             if terminated or truncated:
                 break
-        if recording is not None and agent_spec.kind != "expert":
-            recording.feature_hw = tuple(agent.policy.model.feature_shape[1:])
+        if recording is not None:
+            recording.feature_hw = getattr(agent, "attention_hw", None)
+        success = bool(info["is_success"])
         return EpisodeResult(
             agent_index=spec.agent_index,
             agent=agent_spec.label,
@@ -139,7 +175,8 @@ class RolloutWorker:
             episode=spec.episode,
             seed=spec.seed,
             demo_seed=demo.seed if demo is not None else None,
-            success=bool(info["is_success"]),
+            success=success,
+            achieved_variation=goals.achieved(spec.variation, success),
             steps=steps,
             horizon=env.horizon,
             final_position=[round(float(x), 6) for x in env.task_env.robot_state()[:3]],
@@ -177,10 +214,11 @@ class RolloutWorker:
 
 
 def _frame_picker(agent: Agent):
-    """The demonstration frames a policy conditions on (first, last, middle-segment centres), None for the expert."""
-    if agent.spec.kind == "expert":
+    """The demonstration frames a policy conditions on (first, last, middle-segment centres); None (all frames)
+    for an agent that takes no demonstration or a policy that does not say how many frames it uses."""
+    n_frames = getattr(agent.policy.config, "n_demo_frames", None) if agent.spec.needs_demo else None
+    if n_frames is None:
         return None
     from mosaic_policy.paired_sampling import demo_frame_indices
 
-    n_frames = agent.policy.config.n_demo_frames
     return lambda length: demo_frame_indices(length, n_frames)

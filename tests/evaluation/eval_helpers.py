@@ -1,4 +1,4 @@
-"""Small MOSAIC checkpoints on disk, written as lerobot-train writes them (config, weights, processors)."""
+"""Small policy checkpoints on disk (MOSAIC, ACT), written as lerobot-train writes them (config, weights, processors)."""
 
 from __future__ import annotations
 
@@ -10,20 +10,27 @@ HEIGHT, WIDTH = 48, 88
 """A small camera: the environments render at the checkpoint's size."""
 
 
-def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH) -> Path:
-    """An untrained two-layer MOSAIC at ``height`` x ``width`` with action statistics over the workspace."""
+def policy_features(height: int, width: int) -> dict:
+    """The input/output features of a policy trained on a mosaic-data dataset at ``height`` x ``width``."""
     from lerobot.configs import FeatureType, PolicyFeature
 
+    return {
+        "input_features": {
+            "observation.images.agentview": PolicyFeature(FeatureType.VISUAL, (3, height, width)),
+            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
+        },
+        "output_features": {"action": PolicyFeature(FeatureType.ACTION, (7,))},
+    }
+
+
+def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH) -> Path:
+    """An untrained two-layer MOSAIC at ``height`` x ``width`` with action statistics over the workspace."""
     from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
     from mosaic_policy.modeling_mosaic import MosaicPolicy
 
     config = MosaicConfig(
         device="cpu",
-        input_features={
-            "observation.images.agentview": PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
-        },
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
+        **policy_features(height, width),
         n_attention_layers=2,
         n_attention_heads=2,
         embed_dim=32,
@@ -36,6 +43,42 @@ def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH
 
     stats = workspace_action_stats() | {"observation.state": {"mean": torch.zeros(10), "std": torch.ones(10)}}
     preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=stats)
+    for part in (policy, preprocessor, postprocessor):
+        part.save_pretrained(folder)
+    return folder
+
+
+def write_tiny_act_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH, chunk: int = 5) -> Path:
+    """An untrained one-layer ACT (no ImageNet weights, no VAE) that predicts ``chunk`` actions at a time, with
+    LeRobot's own ACT processors: a policy that takes no demonstration."""
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+    from lerobot.policies.factory import make_pre_post_processors
+
+    config = ACTConfig(
+        device="cpu",
+        **policy_features(height, width),
+        chunk_size=chunk,
+        n_action_steps=chunk,
+        dim_model=32,
+        n_heads=2,
+        dim_feedforward=64,
+        n_encoder_layers=1,
+        n_decoder_layers=1,
+        use_vae=False,
+        pretrained_backbone_weights=None,
+        push_to_hub=False,
+    )
+    torch.manual_seed(0)
+    policy = ACTPolicy(config)
+    from pipelines.evaluation.agents import workspace_action_stats
+
+    box = workspace_action_stats()["action"]
+    stats = {
+        "action": {"mean": (box["min"] + box["max"]) / 2, "std": (box["max"] - box["min"]) / 2},
+        "observation.state": {"mean": torch.zeros(10), "std": torch.ones(10)},
+    }
+    preprocessor, postprocessor = make_pre_post_processors(config, dataset_stats=stats)
     for part in (policy, preprocessor, postprocessor):
         part.save_pretrained(folder)
     return folder

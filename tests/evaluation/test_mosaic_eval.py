@@ -50,6 +50,8 @@ def test_expert_row_reaches_its_target_on_door_with_two_workers(tmp_path):
     report = json.loads(output.read_text())
     overall = report["tables"]["expert"]["overall"]
     assert overall["episodes"] == 8 and overall["mean"] >= 0.95
+    confusion = report["tables"]["expert"]["per_task"][0]["confusion"]
+    assert sum(confusion["counts"][v][v] for v in range(4)) == round(8 * overall["mean"])  # successes: the diagonal
     assert report["timing"]["workers"] == 2
 
 
@@ -85,16 +87,66 @@ def test_bad_input_is_one_line(tmp_path, capsys, args, message):
     assert not output.exists()
 
 
-def test_a_checkpoint_of_another_policy_is_refused(tmp_path, capsys, tiny_checkpoint):
-    other = tmp_path / "act_checkpoint"
-    other.mkdir()
-    config = json.loads((tiny_checkpoint / "config.json").read_text()) | {"type": "act"}
-    (other / "config.json").write_text(json.dumps(config))
-    (other / "model.safetensors").write_bytes(b"")
+def _edited_checkpoint(folder, source, **changes):
+    """A copy of ``source``'s config.json with ``changes`` (weights left empty: the plan refuses before loading)."""
+    folder.mkdir()
+    config = json.loads((source / "config.json").read_text()) | changes
+    (folder / "config.json").write_text(json.dumps(config))
+    (folder / "model.safetensors").write_bytes(b"")
+    return folder
+
+
+def test_an_act_checkpoint_runs_without_a_demonstration(tmp_path, tiny_act_checkpoint):
+    code, output = _run(
+        tmp_path, f"--policy.path={tiny_act_checkpoint}", "--task", "door", "--variations", "0,2",
+        "--episodes-per-variation", "1", "--workers", "1", "--max-steps", "7",
+    )
+    assert code == 0
+    report = json.loads(output.read_text())
+    assert list(report["tables"]) == ["act"]  # checkpoints form one row per policy type
+    (agent,) = report["settings"]["agents"]
+    assert agent["takes_demo"] is False
+    episodes = report["episodes"]
+    assert [e["steps"] for e in episodes] == [7, 7], "select_action refills its 5-action chunk on its own"
+    assert all(e["demo_seed"] is None for e in episodes), "no demonstration is made for a policy that cannot use it"
+    confusion = report["tables"]["act"]["per_task"][0]["confusion"]
+    assert confusion["rows"] == [0, 2] and confusion["columns"][-1] == "none"
+    assert [sum(row) for row in confusion["counts"]] == [1, 1]
+    assert (output.parent / "confusion_door.png").is_file()
+
+
+def test_mosaic_and_act_are_two_rows_with_a_heat_map_each(tmp_path, capsys, tiny_checkpoint, tiny_act_checkpoint):
+    code, output = _run(
+        tmp_path, f"--policy.path={tiny_checkpoint}", f"--policy.path={tiny_act_checkpoint}", "--task", "door",
+        "--variations", "1", "--episodes-per-variation", "1", "--workers", "1", "--max-steps", "3",
+    )
+    assert code == 0
+    assert list(json.loads(output.read_text())["tables"]) == ["mosaic", "act"]
+    assert {p.name for p in output.parent.glob("*.png")} == {"confusion_door_mosaic.png", "confusion_door_act.png"}
+    printed = capsys.readouterr().out.splitlines()
+    assert [line.split() for line in printed if "wrong variation" in line] == [["door", "wrong", "variation", "0.0%", "0.0%"]]
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"type": "no_such_policy"}, "holds a 'no_such_policy' policy that LeRobot does not know: install"),
+        ({"input_features": {"observation.images.wrist": {"type": "VISUAL", "shape": [3, 48, 88]}}},
+         "expects input observation.images.wrist but the MOSAIC tasks provide only observation.images.agentview"),
+        ({"input_features": {"observation.images.agentview": {"type": "VISUAL", "shape": [3, 48, 88]},
+                             "observation.state": {"type": "STATE", "shape": [14]}}},
+         "expects observation.state of shape (14,) but the MOSAIC tasks give (10,)"),
+        ({"output_features": {"action": {"type": "ACTION", "shape": [14]}}}, "outputs action of shape (14,)"),
+    ],
+)
+def test_a_checkpoint_that_does_not_fit_is_one_line(tmp_path, capsys, tiny_act_checkpoint, changes, message):
+    other = _edited_checkpoint(tmp_path / "other", tiny_act_checkpoint, **changes)
     code, _ = _run(tmp_path, f"--policy.path={other}", "--task", "door")
     error = capsys.readouterr().err.strip()
-    assert code == 2 and "holds a 'act' policy, not a MOSAIC policy" in error
+    assert code == 2 and message in error and "\n" not in error
 
+
+def test_a_folder_without_a_config_is_refused(tmp_path, capsys):
     empty = tmp_path / "not_a_checkpoint"
     empty.mkdir()
     code, _ = _run(tmp_path, f"--policy.path={empty}", "--task", "door")
