@@ -1,246 +1,247 @@
-"""Benchmark: does MOSAIC learn, and does it use the demonstration? A short CPU run on collected door data.
+"""Does a policy learn to do what ONE demonstration shows? Collect, train, evaluate one-shot, in one command.
 
-    python -m pipelines.bench.policy_learning [--task door] [--variations 0 1] [--episodes 4] [--steps 300]
-        [--eval-every 500] [--data-dir DIR] [--save-checkpoint DIR]
+    python -m pipelines.bench.policy_learning --task door --preset cpu --output DIR
 
-Collects expert episodes of the door task with the Panda (agent) and the Sawyer (demonstrator) at a reduced
-image size (mosaic_data's experts, LeRobot's writer), holds out the last Panda episode of every variation,
-trains with the same steps as lerobot-train (dataset stats normalisation, paired demos, Adam, update()), and
-prints the held-out BC loss before and after, and the held-out action error given a demo of the right
-variation against a demo of another one, over all frames and over the first `--early-frames` frames of each
-episode (before the arm's motion gives the goal away). Variations 0 and 1 are the same door swung opposite
-ways: only the demonstration tells them apart.
+Every stage is the tool a user runs by hand, as a subprocess, so the figures are those of the shipped commands:
 
-The demonstrations of the held-out figures are held out too (the last `--held-out-demos` demonstrator episodes
-of every variation never condition a training sample), so they measure one-shot use of new demonstrations.
+1. `mosaic-data collect --task door --robot both ...` writes the agent (Panda) and demonstrator (Sawyer)
+   datasets under DIR/data (reused when already complete: the collector resumes or leaves them alone);
+2. `lerobot-train --policy.type=mosaic ...` trains on them and saves checkpoints every `save_every` steps;
+3. `mosaic-eval --policy.path=<checkpoint> ...` rolls out every saved checkpoint on held-out instances (seeds
+   from 10^9, never collected) with a fresh Sawyer demonstration per episode (another held-out instance).
 
-`--eval-every` prints the held-out figures during training (how the demo dependence grows with steps);
-`--data-dir` keeps the collected datasets for the next run; `--save-checkpoint` writes the trained policy
-with its processors in lerobot-train's `pretrained_model` layout, so `mosaic-eval --policy.path=DIR` rolls it out.
+DIR/results.json holds the settings, the time of each stage, the learning curve (one-shot success of every
+checkpoint, and how often the wrong variation was achieved) and the final checkpoint's per-variation success
+and confusion matrix; DIR/learning_curve.png plots the curve, and each checkpoint's evaluation folder holds
+mosaic-eval's results.md and confusion-matrix PNG. `--preset` picks sizes for the machine; any option below
+overrides it, and extra `lerobot-train` options go after `--`, e.g. `-- --policy.use_state=true`.
 """
 
+from __future__ import annotations
+
 import argparse
-import shutil
-import tempfile
+import json
+import os
+import subprocess
+import sys
 import time
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-import torch
 
-IMAGE_KEY = "observation.images.agentview"
+@dataclass(frozen=True)
+class Preset:
+    """Sizes of one learning run. `cpu` fits about an hour of training on 2 CPU cores; `paper` is the paper's."""
+
+    image_size: str = "48x88"
+    episodes: int = 40  # per variation and robot
+    steps: int = 2700
+    batch_size: int = 16
+    train_obs_frames: int = 7
+    save_every: int = 900
+    eval_episodes: int = 10  # per variation and checkpoint
+    eval_max_steps: int | None = None  # cap on an evaluation episode (None: the task's horizon)
+    policy_options: tuple[str, ...] = field(default_factory=tuple)
 
 
-def collect(root: Path, repo_id: str, task: str, robot: str, variations, episodes: int, height: int, width: int) -> Path:
-    from lerobot.datasets import LeRobotDataset
+PRESETS: dict[str, Preset] = {
+    "cpu": Preset(),
+    "paper": Preset(
+        image_size="100x180", episodes=100, steps=40_000, batch_size=30, train_obs_frames=7, save_every=10_000
+    ),
+    # the whole pipeline in about two minutes (a test): nothing is learned
+    "smoke": Preset(
+        image_size="32x56", episodes=2, steps=4, batch_size=4, train_obs_frames=2, save_every=2, eval_episodes=1,
+        eval_max_steps=10,
+    ),
+}
 
-    from mosaic_data.rollout import run_expert_episode
-    from mosaic_data.tasks import make_task_env
 
-    from mosaic_data.collection.schema import dataset_features
+def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[str]]:
+    parser = argparse.ArgumentParser(
+        prog="python -m pipelines.bench.policy_learning",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--task", default="door", help="task (see `mosaic-data tasks`)")
+    parser.add_argument("--variations", default=None, help="e.g. 0,2 (default: every variation)")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
+    parser.add_argument("--output", type=Path, required=True, help="folder for data, checkpoints and results")
+    parser.add_argument("--data-dir", type=Path, default=None,
+                        help="datasets folder (default: OUTPUT/data); share one between runs that compare options")
+    for name, kind in (("image-size", str), ("episodes", int), ("steps", int), ("batch-size", int),
+                       ("train-obs-frames", int), ("save-every", int), ("eval-episodes", int)):
+        parser.add_argument(f"--{name}", type=kind, default=None, help="overrides the preset")
+    parser.add_argument("--workers", type=int, default=2, help="collection and evaluation processes")
+    parser.add_argument("--seed", type=int, default=1000, help="training seed")
+    parser.add_argument("--eval-only", action="store_true", help="evaluate the checkpoints already in DIR/train")
+    argv = sys.argv[1:] if argv is None else argv
+    extra: list[str] = []
+    if "--" in argv:
+        argv, extra = argv[: argv.index("--")], argv[argv.index("--") + 1 :]
+    return parser.parse_args(argv), extra
 
-    features = dataset_features(height, width)
-    dataset = LeRobotDataset.create(repo_id, 20, features, root=root, use_videos=True)
+
+def resolve_preset(args: argparse.Namespace, extra: list[str]) -> Preset:
+    preset = PRESETS[args.preset]
+    overrides = {
+        key: getattr(args, key)
+        for key in ("image_size", "episodes", "steps", "batch_size", "train_obs_frames", "save_every", "eval_episodes")
+        if getattr(args, key) is not None
+    }
+    return replace(preset, **overrides, policy_options=tuple(extra))
+
+
+def _bin(name: str) -> str:
+    """A console script of this environment (the venv's, whatever PATH says)."""
+    return str(Path(sys.executable).parent / name)
+
+
+COMMANDS: list[str] = []
+"""Every stage's command line, in order, for results.json."""
+
+
+def _run(command: list[str], log: Path) -> float:
+    """Run a stage, its output into `log` (and a one-line summary on screen); seconds taken. Exits on failure."""
+    print(f"$ {' '.join(command)}", flush=True)
+    COMMANDS.append(" ".join(command))
+    start = time.perf_counter()
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+    with log.open("w") as out:
+        result = subprocess.run(command, stdout=out, stderr=subprocess.STDOUT, env=env)
+    seconds = time.perf_counter() - start
+    if result.returncode != 0:
+        tail = "".join(log.read_text().splitlines(keepends=True)[-15:])
+        sys.exit(f"{tail}\npolicy_learning: `{Path(command[0]).name}` failed (exit {result.returncode}); full log: {log}")
+    print(f"  done in {seconds / 60:.1f} min (log: {log})", flush=True)
+    return seconds
+
+
+def collect(args: argparse.Namespace, preset: Preset, data_dir: Path) -> float:
+    command = [_bin("mosaic-data"), "collect", "--task", args.task, "--robot", "both", "--episodes", str(preset.episodes),
+               "--image-size", preset.image_size, "--workers", str(args.workers), "--output-dir", str(data_dir), "--quiet"]
+    if args.variations:
+        command += ["--variations", args.variations]
+    return _run(command, args.output / "collect.log")
+
+
+def train(args: argparse.Namespace, preset: Preset, data_dir: Path, train_dir: Path) -> float:
+    agent, demo = f"mosaic/{args.task}_panda", f"mosaic/{args.task}_sawyer"
+    command = [
+        _bin("lerobot-train"),
+        "--policy.type=mosaic",
+        f"--dataset.repo_id={agent}",
+        f"--dataset.root={data_dir / agent}",
+        f"--policy.demo_repo_id={demo}",
+        f"--policy.demo_root={data_dir / demo}",
+        f"--policy.train_obs_frames={preset.train_obs_frames}",
+        "--policy.push_to_hub=false",
+        "--policy.device=cpu",
+        f"--batch_size={preset.batch_size}",
+        f"--steps={preset.steps}",
+        f"--save_freq={preset.save_every}",
+        "--log_freq=50",
+        "--num_workers=1",
+        f"--seed={args.seed}",
+        f"--output_dir={train_dir}",
+        *preset.policy_options,
+    ]
+    return _run(command, args.output / "train.log")
+
+
+def checkpoints(train_dir: Path) -> list[tuple[int, Path]]:
+    """(step, pretrained_model folder) of every checkpoint lerobot-train saved, in step order."""
+    found = []
+    for folder in (train_dir / "checkpoints").iterdir():
+        if folder.name.isdigit() and (folder / "pretrained_model" / "model.safetensors").is_file():
+            found.append((int(folder.name), folder / "pretrained_model"))
+    return sorted(found)
+
+
+def evaluate(args: argparse.Namespace, preset: Preset, checkpoint: Path, out: Path) -> tuple[float, dict]:
+    out.mkdir(parents=True, exist_ok=True)
+    command = [_bin("mosaic-eval"), f"--policy.path={checkpoint}", "--task", args.task,
+               "--episodes-per-variation", str(preset.eval_episodes), "--workers", str(args.workers),
+               "--output", str(out / "results.json"), "--quiet"]
+    if args.variations:
+        command += ["--variations", args.variations]
+    if preset.eval_max_steps:
+        command += ["--max-steps", str(preset.eval_max_steps)]
+    seconds = _run(command, out / "eval.log")
+    return seconds, json.loads((out / "results.json").read_text())
+
+
+def summarise(results: dict, task: str) -> dict:
+    """Success and wrong-variation share of one checkpoint's mosaic-eval results, per variation and overall."""
+    table = next(iter(results["tables"].values()))  # one agent: the checkpoint
+    task_row = next(row for row in table["per_task"] if row["task"] == task)
+    return {
+        "success": task_row["mean"],
+        "per_variation": {str(row["variation"]): row["mean"] for row in table["per_variation"] if row["task"] == task},
+        "wrong_variation_share": task_row["confusion"]["wrong_variation_share"],
+        "confusion": task_row["confusion"],
+    }
+
+
+def plot_learning_curve(curve: list[dict], path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [point["step"] for point in curve]
+    figure, axis = plt.subplots(figsize=(6, 3.6), dpi=120)
+    axis.plot(steps, [100 * p["success"] for p in curve], "o-", label="one-shot success")
+    axis.plot(steps, [100 * (p["wrong_variation_share"] or 0) for p in curve], "s--", label="wrong variation done")
+    variations = sorted({v for p in curve for v in p["per_variation"]}, key=int)
     for variation in variations:
-        env = make_task_env(task, variation, robot, image_height=height, image_width=width)
-        kept, seed = 0, 0
-        while kept < episodes and seed < 3 * episodes:
-            episode = run_expert_episode(env, seed, record_frames=True)
-            seed += 1
-            if not episode.success:
-                continue
-            for i in range(episode.length):
-                dataset.add_frame(
-                    {
-                        IMAGE_KEY: episode.frames[i],
-                        "observation.state": np.asarray(episode.states[i], dtype=np.float32),
-                        "action": np.asarray(episode.actions[i], dtype=np.float32),
-                        "variation": np.array([variation]),
-                        "next.success": np.array([episode.successes[i]]),
-                        "next.done": np.array([i == episode.length - 1]),
-                        "task": episode.description,
-                    }
-                )
-            dataset.save_episode()
-            kept += 1
-        env.close()
-    dataset.finalize()
-    return root
+        axis.plot(steps, [100 * p["per_variation"].get(variation, 0) for p in curve], ":", alpha=0.6, label=f"variation {variation}")
+    axis.set(xlabel="training steps", ylabel="% of episodes", ylim=(-3, 103), title=title)
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=7, loc="best")
+    figure.tight_layout()
+    figure.savefig(path)
+    plt.close(figure)
 
 
-def hold_out_demos(sampler, per_variation: int, agent_meta):
-    """Move the last ``per_variation`` demonstrator episodes of every variation out of the training ``sampler``
-    and into a new (synchronous) sampler for the held-out figures, before the training sampler draws anything."""
-    from mosaic_policy.paired_sampling import PairedDemoSampler
-
-    if per_variation < 1:
-        raise SystemExit("--held-out-demos must be at least 1")
-    held_out = PairedDemoSampler(sampler.repo_id, sampler.meta.root, sampler.image_key, sampler.n_frames, agent_meta, threads=0)
-    for task, episodes in sampler.episodes_by_task.items():
-        if len(episodes) <= per_variation:
-            raise SystemExit(f"variation {task!r} has {len(episodes)} demonstrator episodes: use more --episodes")
-        sampler.episodes_by_task[task], held_out.episodes_by_task[task] = episodes[:-per_variation], episodes[-per_variation:]
-    return held_out
-
-
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--task", default="door")
-    parser.add_argument("--variations", type=int, nargs="+", default=[0, 1])
-    parser.add_argument("--episodes", type=int, default=4, help="per variation and robot")
-    parser.add_argument("--height", type=int, default=48)
-    parser.add_argument("--width", type=int, default=88)
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--batch-size", type=int, default=8)
-    parser.add_argument("--obs-frames", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--early-frames", type=int, default=10, help="frames counted as 'early' in the error table")
-    parser.add_argument("--held-out-demos", type=int, default=2,
-                        help="demonstrator episodes per variation kept out of training, for the held-out figures")
-    parser.add_argument("--eval-every", type=int, default=0, help="also print the held-out figures every N steps")
-    parser.add_argument("--data-dir", type=Path, help="collect into (or reuse) this folder instead of a temporary one")
-    parser.add_argument("--save-checkpoint", type=Path, help="write the trained policy and processors here")
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    torch.manual_seed(args.seed)
-
-    from lerobot.datasets import LeRobotDataset
-    from lerobot.policies.factory import make_policy
-
-    from mosaic_policy import MosaicConfig
-    from mosaic_policy.processor_mosaic import make_mosaic_pre_post_processors
-
-    from mosaic_data.collection.quiet import quiet_dataset_writing
-
-    quiet_dataset_writing()
-
-    agent_repo, demo_repo = f"mosaic/{args.task}_panda", f"mosaic/{args.task}_sawyer"
-    with tempfile.TemporaryDirectory() as tmp:
-        data_dir = args.data_dir or Path(tmp)
-        name = f"{args.task}_v{'-'.join(map(str, args.variations))}_e{args.episodes}_{args.height}x{args.width}"
-        agent_root, demo_root = data_dir / name / "agent", data_dir / name / "demo"
-        if (agent_root / "meta" / "info.json").exists() and (demo_root / "meta" / "info.json").exists():
-            print(f"reusing the datasets in {data_dir / name}")
-        else:
-            start = time.perf_counter()
-            for root in (agent_root, demo_root):  # a half-written earlier attempt
-                shutil.rmtree(root, ignore_errors=True)
-            collect(agent_root, agent_repo, args.task, "panda", args.variations, args.episodes, args.height, args.width)
-            collect(demo_root, demo_repo, args.task, "sawyer", args.variations, args.episodes, args.height, args.width)
-            print(f"collected {args.task} variations {args.variations}, {args.episodes} episodes each per robot, in {time.perf_counter() - start:.0f} s")
-
-        from lerobot.datasets import LeRobotDatasetMetadata
-
-        meta = LeRobotDatasetMetadata(agent_repo, root=agent_root)
-        tasks = [t[0] for t in meta.episodes["tasks"]]
-        held_out = [max(i for i, t in enumerate(tasks) if t == task) for task in dict.fromkeys(tasks)]
-        train_episodes = [i for i in range(meta.total_episodes) if i not in held_out]
-
-        config = MosaicConfig(
-            device="cpu",
-            push_to_hub=False,
-            demo_repo_id=demo_repo,
-            demo_root=str(demo_root),
-            train_obs_frames=args.obs_frames,
-            ema_total_steps=args.steps,
-            demo_loader_threads=1,
-        )
-        deltas = [i / meta.fps for i in config.observation_delta_indices]
-        delta_timestamps = {IMAGE_KEY: deltas, "observation.state": deltas, "action": deltas}
-        train_set = LeRobotDataset(agent_repo, root=agent_root, episodes=train_episodes, delta_timestamps=delta_timestamps)
-        eval_set = LeRobotDataset(agent_repo, root=agent_root, episodes=held_out, delta_timestamps=delta_timestamps)
-        policy = make_policy(config, ds_meta=train_set.meta)
-        preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=train_set.meta.stats)
-        optimizer = torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr)
-        sampler = policy.demo_sampler
-        eval_sampler = hold_out_demos(sampler, args.held_out_demos, train_set.meta)
-        other_task = {t: next(o for o in dict.fromkeys(tasks) if o != t) for t in dict.fromkeys(tasks)}
-
-        eval_batches = [preprocessor(b) | {"frame_index": b["frame_index"]} for b in torch.utils.data.DataLoader(eval_set, batch_size=16)]
-        for batch in eval_batches:
-            batch["right_demo"] = eval_sampler.sample(list(batch["task"]), batch["episode_index"].tolist()).float() / 255
-            batch["wrong_demo"] = eval_sampler.sample([other_task[t] for t in batch["task"]]).float() / 255
-
-        stats = {key: {name: torch.as_tensor(value, dtype=torch.float32)[:3] for name, value in train_set.meta.stats[key].items()}
-                 for key in ("action", "observation.state")}
-
-        def target_metres(normalised_action):  # MIN_MAX back to metres, position only
-            low, high = stats["action"]["min"], stats["action"]["max"]
-            return (normalised_action[..., :3].clamp(-1, 1) + 1) / 2 * (high - low) + low
-
-        @torch.no_grad()
-        def evaluate():
-            policy.eval()
-            nll, n, n_early = 0.0, 0, 0
-            errors = {f"{key}{part}": 0.0 for key in ("right", "wrong", "step_right", "step_wrong") for part in ("", "_early")}
-            for batch in eval_batches:
-                valid = ~batch["action_is_pad"]
-                early = valid & (batch["frame_index"][:, None] + torch.arange(valid.shape[1]) < args.early_frames)
-                position = batch["observation.state"][..., :3] * stats["observation.state"]["std"] + stats["observation.state"]["mean"]
-                true_step = target_metres(batch["action"]) - position
-                for key, demo in (("right", batch["right_demo"]), ("wrong", batch["wrong_demo"])):
-                    encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo, batch[IMAGE_KEY])
-                    embeddings = policy.model.frame_embeddings(encoded["obs_post"])
-                    dist = policy.model.action_distribution(embeddings, batch["observation.state"])
-                    error = (dist.mode() - batch["action"].clamp(-1, 1)).abs().mean(-1)
-                    errors[key] += error[valid].sum().item()
-                    errors[f"{key}_early"] += error[early].sum().item()
-                    # The commanded step (target minus current grip position), in mm: the action is an absolute
-                    # target a little ahead of the hand, so its error above is mostly the state's; the step is
-                    # where the goal shows.
-                    step_error = 1000 * torch.linalg.vector_norm(target_metres(dist.mode()) - position - true_step, dim=-1)
-                    errors[f"step_{key}"] += step_error[valid].sum().item()
-                    errors[f"step_{key}_early"] += step_error[early].sum().item()
-                    if key == "right":
-                        nll += -dist.log_prob(batch["action"]).sum(-1)[valid].sum().item()
-                n += valid.sum().item()
-                n_early += early.sum().item()
-            policy.train()
-            return nll / n, {k: v / (n_early if k.endswith("early") else n) for k, v in errors.items()}
-
-        def report(when: str, figures) -> None:
-            nll, errors = figures
-            print(
-                f"{when}: held-out BC loss {nll:.2f} nats; right demo / demo of another variation: action error (mean "
-                f"|a - a*|, normalised [-1, 1] units) all frames {errors['right']:.3f} / {errors['wrong']:.3f}, first "
-                f"{args.early_frames} frames {errors['right_early']:.3f} / {errors['wrong_early']:.3f}; commanded-step "
-                f"error (|predicted - expert| of target minus grip position, mm) all frames {errors['step_right']:.1f} / "
-                f"{errors['step_wrong']:.1f}, first {args.early_frames} frames {errors['step_right_early']:.1f} / "
-                f"{errors['step_wrong_early']:.1f}",
-                flush=True,
-            )
-
-        before = evaluate()
-        loader = torch.utils.data.DataLoader(train_set, batch_size=args.batch_size, shuffle=True, drop_last=True)
-        step, start, eval_seconds = 0, time.perf_counter(), 0.0
-        while step < args.steps:
-            for batch in loader:
-                loss, info = policy.forward(preprocessor(batch))
-                optimizer.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(policy.get_optim_params(), 10.0)
-                optimizer.step()
-                policy.update()
-                step += 1
-                if step % 50 == 0:
-                    print(f"step {step}: loss {info['loss']:.2f} (bc {info['bc_loss']:.2f}), {(time.perf_counter() - start - eval_seconds) / step:.2f} s/step")
-                if args.eval_every and step % args.eval_every == 0 and step < args.steps:
-                    eval_start = time.perf_counter()
-                    report(f"after {step} steps", evaluate())
-                    eval_seconds += time.perf_counter() - eval_start
-                if step >= args.steps:
-                    break
-        after = evaluate()
-        sampler.close()
-        print(f"held-out BC loss (nats per step, 7 dims): {before[0]:.2f} before -> {after[0]:.2f} after {args.steps} steps")
-        report("before training", before)
-        report(f"after {args.steps} steps", after)
-        if args.save_checkpoint:
-            for part in (policy, preprocessor, postprocessor):
-                part.save_pretrained(args.save_checkpoint)
-            print(f"saved the trained policy to {args.save_checkpoint} (mosaic-eval --policy.path={args.save_checkpoint})")
+def main(argv: list[str] | None = None) -> int:
+    args, extra = parse_args(argv)
+    preset = resolve_preset(args, extra)
+    args.output.mkdir(parents=True, exist_ok=True)
+    data_dir, train_dir = args.data_dir or args.output / "data", args.output / "train"
+    seconds: dict[str, float] = {}
+    if not args.eval_only:
+        seconds["collect"] = collect(args, preset, data_dir)
+        if train_dir.exists():
+            sys.exit(f"policy_learning: {train_dir} already exists: use another --output, or --eval-only to evaluate it")
+        seconds["train"] = train(args, preset, data_dir, train_dir)
+    if not (train_dir / "checkpoints").is_dir():
+        sys.exit(f"policy_learning: no checkpoints in {train_dir}: run without --eval-only first")
+    curve = []
+    seconds["evaluate"] = 0.0
+    for step, checkpoint in checkpoints(train_dir):
+        eval_seconds, results = evaluate(args, preset, checkpoint, args.output / "eval" / f"step_{step:06d}")
+        seconds["evaluate"] += eval_seconds
+        point = {"step": step, **summarise(results, args.task)}
+        curve.append(point)
+        print(f"  step {step}: one-shot success {100 * point['success']:.0f}%, wrong variation "
+              f"{100 * (point['wrong_variation_share'] or 0):.0f}%, per variation "
+              + ", ".join(f"{k}: {100 * v:.0f}%" for k, v in point["per_variation"].items()), flush=True)
+    plot_learning_curve(curve, args.output / "learning_curve.png", f"{args.task}: one-shot success vs training steps")
+    summary = {
+        "task": args.task,
+        "variations": args.variations or "all",
+        "preset": args.preset,
+        "settings": asdict(preset),
+        "seconds": seconds,
+        "commands": COMMANDS,
+        "learning_curve": curve,
+        "final": curve[-1] if curve else None,
+    }
+    (args.output / "results.json").write_text(json.dumps(summary, indent=2))
+    print(f"results: {args.output / 'results.json'}, curve: {args.output / 'learning_curve.png'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
