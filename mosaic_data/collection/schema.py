@@ -1,7 +1,8 @@
 """The one feature schema shared by every MOSAIC dataset (both robots, every task), and where datasets live.
 
-See DESIGN.md, "Data model". Repo ids are ``mosaic/<task>_<robot>`` for collected datasets and
-``mosaic/all_<robot>`` for the merged multi-task ones; the default place is LeRobot's ``HF_LEROBOT_HOME``.
+One LeRobot v3 dataset per (task, robot), the same features for both robots (README, "Datasets"). Repo ids
+are ``mosaic/<task>_<robot>`` for collected datasets and ``mosaic/all_<robot>`` for the merged multi-task ones;
+the default place is LeRobot's ``HF_LEROBOT_HOME``.
 """
 
 from __future__ import annotations

@@ -21,9 +21,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from mosaic_data.collection.schema import ACTION_NAMES
+
 from .rollouts import EpisodeResult
 
-ACTION_NAMES = ("x", "y", "z", "ax", "ay", "az", "gripper")
 
 
 def blueprint(n_demo_frames: int):
