@@ -1,9 +1,14 @@
 """mosaic_data: the MOSAIC simulated task suite, scripted experts and dataset tools.
 
-Importing the package registers the gymnasium environments ``mosaic/<Task>-v0``.
+Importing the package registers the gymnasium environments ``mosaic/<Task>-v0`` (robosuite loads only when
+one is made) and quiets robosuite's harmless import warnings before anything here imports robosuite.
 """
 
-from mosaic_data.envs import register_envs
+from mosaic_data.tasks.robosuite_log import quiet_robosuite_import
+
+quiet_robosuite_import()
+
+from mosaic_data.envs import register_envs  # noqa: E402
 
 register_envs()
 

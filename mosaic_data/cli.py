@@ -12,7 +12,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from mosaic_data.cli_args import parse_int_list
+from mosaic_data.cli_args import MAX_EPISODES, OneLineErrorParser, episode_count, non_negative_int, parse_int_list
 from mosaic_data.collection import CollectionError
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -24,7 +24,8 @@ def _robots(choice: str) -> list[str]:
 
 def cmd_tasks(args: argparse.Namespace) -> int:
     from mosaic_data.envs import gym_id
-    from mosaic_data.tasks import TASKS, get_task_class
+    from mosaic_data.tasks import TASK_NAMES as TASKS  # the table only, not the simulator
+    from mosaic_data.tasks import get_task_spec as get_task_class
 
     tasks = [args.task] if args.task else list(TASKS)
     total = 0
@@ -48,11 +49,13 @@ def cmd_experts(args: argparse.Namespace) -> int:
     variations = args.variations if args.variations is not None else [v.index for v in task_class.variations]
     for variation in variations:
         task_class.validate_variation(variation)
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if not 1 <= args.episodes <= MAX_EPISODES:  # the parser's type bounds it already; a caller may skip the parser
+        raise ValueError(f"--episodes must be from 1 to {MAX_EPISODES} per variation and robot, got {args.episodes}")
+    if args.video is not None:
+        _check_writable(args.video, ".mp4", "--video", f"{args.task}.mp4")
+    if args.rerun is not None:
+        _check_writable(args.rerun, ".rrd", "--rerun", f"{args.task}.rrd")
     output = args.video or args.rerun
-    if output is not None:
-        _check_writable(output)
     seeds = [args.seed + i for i in range(args.episodes)]
     robots = _robots(args.robot)
     record = output is not None
@@ -86,18 +89,15 @@ def cmd_experts(args: argparse.Namespace) -> int:
     return 0 if all_ok else 1
 
 
-def _check_writable(path: Path) -> None:
-    parent = path.resolve().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        pass
-    if not parent.is_dir() or not os.access(parent, os.W_OK):
-        raise ValueError(f"cannot write {path}: its folder {parent} is missing or not writable")
+def _check_writable(path: Path, suffix: str, option: str, example: str) -> None:
+    """Check an output file before any rollout: a bad path used to fail after minutes of rollouts."""
+    from mosaic_data.recording_files import check_output_file
+
+    check_output_file(path, suffix, option, example)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mosaic-data", description=__doc__.splitlines()[0])
+    parser = OneLineErrorParser(prog="mosaic-data", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     defaults = argparse.ArgumentDefaultsHelpFormatter
 
@@ -110,12 +110,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     experts.add_argument("--task", required=True, help="task key, e.g. door (see `mosaic-data tasks`)")
     experts.add_argument("--robot", default="both", choices=["panda", "sawyer", "both"])
-    experts.add_argument("--episodes", type=int, default=20, help="episodes (fresh seeds) per variation and robot")
+    experts.add_argument(
+        "--episodes", type=episode_count, default=20, help=f"episodes (fresh seeds) per variation and robot, at most {MAX_EPISODES}"
+    )
     experts.add_argument("--variations", type=parse_int_list, default=None, help="e.g. 0,3 (default: all)")
-    experts.add_argument("--seed", type=int, default=0, help="first instance seed; episode k uses seed+k")
+    experts.add_argument("--seed", type=non_negative_int, default=0, help="first instance seed; episode k uses seed+k")
     output = experts.add_mutually_exclusive_group()
-    output.add_argument("--video", type=Path, default=None, help="write all episodes to this mp4")
-    output.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
+    output.add_argument("--video", type=Path, default=None, help="write all episodes to this .mp4 file (checked before any rollout)")
+    output.add_argument("--rerun", type=Path, default=None, help="write a rerun recording to this .rrd file (checked before any rollout)")
     experts.set_defaults(func=cmd_experts)
 
     from mosaic_data.collection.cli import add_collection_commands
@@ -125,8 +127,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exit_request:  # a bad argument (printed, one line) or --help: a status, as for every error
+        return exit_request.code if isinstance(exit_request.code, int) else 0
     try:
         return args.func(args)
     except (ValueError, FileNotFoundError) as error:

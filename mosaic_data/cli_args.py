@@ -1,16 +1,68 @@
-"""Argument types shared by the command lines (``mosaic-data``, ``mosaic-eval``): one parsing, one error text."""
+"""Argument types shared by the command lines (``mosaic-data``, ``mosaic-eval``): one parsing, one error text.
+
+argparse prefixes a type's error with the flag (``argument --seed: ...``), so every message here names the flag
+without the type knowing it, and the same bad value gets the same words from every command.
+"""
 
 from __future__ import annotations
 
 import argparse
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """argparse that reports a bad argument as our commands report every other bad input: one line
+    ``<command>: error: argument --flag: ...`` on stderr and exit status 2, without the usage block
+    (``--help`` still shows it). Subcommand parsers inherit the class; the line names the command, not the
+    subcommand, so every error of ``mosaic-data`` starts with ``mosaic-data: error:``."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog.split()[0]}: error: {message}\n")
+
+
+MAX_EPISODES = 10_000
+"""Upper bound for per-variation episode counts: a typo like 1000000000 would otherwise run for years."""
+
 
 def parse_int_list(text: str) -> list[int]:
-    """``"0,3,5"`` -> ``[0, 3, 5]``."""
+    """``"0,3,5"`` -> ``[0, 3, 5]``; empty items (``","``, ``"0,,1"``), repeats (``"0,0"``) and negatives are refused."""
+    example = "expected comma-separated distinct non-negative integers such as 0,3,5"
+    parts = [part.strip() for part in text.split(",")]
+    if any(part == "" for part in parts):
+        raise argparse.ArgumentTypeError(f"{example}, got {text!r} (an empty item)")
     try:
-        return [int(part) for part in text.split(",") if part.strip() != ""]
+        values = [int(part) for part in parts]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 0,3,5, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"{example}, got {text!r}") from None
+    if any(value < 0 for value in values):
+        raise argparse.ArgumentTypeError(f"{example}, got {text!r} (a negative value)")
+    repeated = sorted({value for value in values if values.count(value) > 1})
+    if repeated:
+        raise argparse.ArgumentTypeError(f"{example}, got {text!r} ({', '.join(map(str, repeated))} repeated)")
+    return values
+
+
+def _bounded_int(text: str, low: int, high: int | None, what: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if value < low or (high is not None and value > high):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """Seeds and indices: ``>= 0`` (simulator seeds and episode indices are never negative)."""
+    return _bounded_int(text, 0, None, "an integer >= 0")
+
+
+def positive_int(text: str) -> int:
+    """Counts such as workers and steps: ``>= 1``."""
+    return _bounded_int(text, 1, None, "an integer >= 1")
+
+
+def episode_count(text: str) -> int:
+    """Episodes per variation: ``1 .. MAX_EPISODES``."""
+    return _bounded_int(text, 1, MAX_EPISODES, f"an episode count from 1 to {MAX_EPISODES}")
 
 
 def parse_image_size(text: str) -> tuple[int, int]:

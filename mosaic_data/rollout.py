@@ -89,53 +89,83 @@ def expert_episodes(
 
 
 def write_video(path: Path, episodes: list[Episode], fps: int = 20) -> None:
-    """Concatenate the episodes' frames into one H.264 mp4."""
+    """Concatenate the episodes' frames into one H.264 mp4 (written whole or not at all)."""
     import imageio.v3 as iio
+
+    from mosaic_data.recording_files import file_written_whole
 
     frames = [frame for episode in episodes for frame in episode.frames]
     if not frames:
         raise ValueError("no frames were recorded")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, np.stack(frames), plugin="pyav", fps=fps, codec="libx264")
+    with file_written_whole(path) as temporary:
+        iio.imwrite(temporary, np.stack(frames), plugin="pyav", fps=fps, codec="libx264")
 
 
 def write_rerun(path: Path, episodes: list[Episode], fps: int = 20) -> None:
-    """Save a rerun recording: camera, state and action curves, success, one timeline per episode step."""
+    """Save a rerun recording: camera (JPEG), state and action curves, success.
+
+    Timelines: ``time`` plays all episodes one after the other in real time (``fps``), ``frame`` counts their
+    steps, ``episode_step`` restarts in each episode and ``episode`` jumps between them. Each episode goes in
+    as a few columns (``send_columns``), not one message per value.
+    """
     import rerun as rr
     import rerun.blueprint as rrb
 
-    recording = rr.RecordingStream("mosaic_experts")
+    from mosaic_data.recording_files import jpeg_bytes, rerun_file
+
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial2DView(origin="/camera", name="agentview"),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="/camera", name="agentview"),
+                rrb.TextDocumentView(origin="/episode", name="episode"),
+                row_shares=[4, 1],
+            ),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="/action", name="action (target pose, gripper)"),
                 rrb.TimeSeriesView(origin="/state", name="state"),
                 rrb.TimeSeriesView(origin="/success", name="success"),
             ),
         ),
+        rrb.TimePanel(timeline="time"),
         collapse_panels=True,
     )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    recording.save(str(path), default_blueprint=blueprint)
-    global_step = 0
-    for index, episode in enumerate(episodes):
-        recording.set_time("episode", sequence=index)
-        recording.log("/episode", rr.TextDocument(
-            f"{episode.task} / {episode.robot} / variation {episode.variation}: {episode.description} "
-            f"(seed {episode.seed}, {'success' if episode.success else 'failure'} in {episode.length} steps)"
-        ))
-        for step in range(episode.length):
-            recording.set_time("frame", sequence=global_step)
-            recording.set_time("episode_step", sequence=step)
+    state_names = ["x", "y", "z", "gripper_opening"]
+    with rerun_file(path, "mosaic_experts", blueprint) as recording:
+        for name in ACTION_NAMES:
+            recording.log(f"/action/{name}", rr.SeriesLines(names=name), static=True)
+        for name in state_names:
+            recording.log(f"/state/{name}", rr.SeriesLines(names=name), static=True)
+        recording.log("/success", rr.SeriesLines(names="success"), static=True)
+        first = 0
+        for index, episode in enumerate(episodes):
+            steps = np.arange(episode.length)
+            frame = first + steps
+            times = [
+                rr.TimeColumn("episode", sequence=np.full(episode.length, index)),
+                rr.TimeColumn("frame", sequence=frame),
+                rr.TimeColumn("episode_step", sequence=steps),
+                rr.TimeColumn("time", duration=(frame * (10**9 // fps)).astype("timedelta64[ns]")),  # exact, not float
+            ]
+            recording.set_time("episode", sequence=index)
+            recording.set_time("frame", sequence=first)
+            recording.set_time("episode_step", sequence=0)
+            recording.set_time("time", duration=np.timedelta64(first * (10**9 // fps), "ns"))
+            recording.log("/episode", rr.TextDocument(
+                f"{episode.task} / {episode.robot} / variation {episode.variation}: {episode.description} "
+                f"(seed {episode.seed}, {'success' if episode.success else 'failure'} in {episode.length} steps)"
+            ))
             if episode.frames:
-                recording.log("/camera", rr.Image(episode.frames[step]))
-            for name, value in zip(ACTION_NAMES, episode.actions[step]):
-                recording.log(f"/action/{name}", rr.Scalars(float(value)))
-            for name, value in zip(["x", "y", "z"], episode.states[step][:3]):
-                recording.log(f"/state/{name}", rr.Scalars(float(value)))
-            recording.log("/state/gripper_opening", rr.Scalars(float(episode.states[step][-1])))
-            is_last = step == episode.length - 1
-            recording.log("/success", rr.Scalars(float(episode.success and is_last)))
-            global_step += 1
-    recording.flush()
+                blobs = [jpeg_bytes(image) for image in episode.frames[: episode.length]]
+                recording.send_columns(
+                    "/camera", indexes=times, columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs))
+                )
+            actions = np.asarray(episode.actions[: episode.length], dtype=np.float64)
+            for column, name in enumerate(ACTION_NAMES):
+                recording.send_columns(f"/action/{name}", indexes=times, columns=rr.Scalars.columns(scalars=actions[:, column]))
+            states = np.asarray(episode.states[: episode.length], dtype=np.float64)
+            for column, name in zip([0, 1, 2, -1], state_names):
+                recording.send_columns(f"/state/{name}", indexes=times, columns=rr.Scalars.columns(scalars=states[:, column]))
+            success = np.zeros(episode.length)
+            success[-1:] = float(episode.success)
+            recording.send_columns("/success", indexes=times, columns=rr.Scalars.columns(scalars=success))
+            first += episode.length

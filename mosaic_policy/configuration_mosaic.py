@@ -1,6 +1,7 @@
 """Configuration of the MOSAIC policy (multi-task one-shot imitation with self-attention and contrastive learning)."""
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
@@ -222,6 +223,18 @@ class MosaicConfig(PreTrainedConfig):
             )
         if self.demo_loader_threads < 0:
             raise ValueError(f"`demo_loader_threads` must be >= 0, got {self.demo_loader_threads}.")
+
+    def _save_pretrained(self, save_directory: Path) -> None:
+        """config.json without ``demo_root``: a folder of this machine, meaningless where the policy is loaded
+        (the Hub, another machine). A loaded policy that trains again finds its demonstrator dataset in
+        LeRobot's cache ($HF_LEROBOT_HOME/<demo_repo_id>) unless ``--policy.demo_root`` is given again;
+        evaluation never reads it. (lerobot-train's own train_config.json keeps the run's paths for --resume.)
+        """
+        demo_root, self.demo_root = self.demo_root, None
+        try:
+            super()._save_pretrained(save_directory)
+        finally:
+            self.demo_root = demo_root
 
     @property
     def contrastive_before(self) -> bool:

@@ -18,9 +18,8 @@ environment can deliver the demonstration itself as the observation `observation
 `lerobot-eval --env.type=mosaic` does): the first `select_action` after `reset()` caches it.
 """
 
-import functools
 from collections import Counter, deque
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -35,6 +34,11 @@ from .configuration_mosaic import MosaicConfig
 from .contrastive import TemporalContrastiveModule, ema_momentum, ema_update, make_target, positive_indices
 from .discretized_logistic import DiscretizedLogisticHead, DiscretizedLogisticMixture
 from .paired_sampling import PairedDemoSampler, demo_frame_indices
+
+if TYPE_CHECKING:
+    from huggingface_hub import ModelCard
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.datasets import LeRobotDatasetMetadata
 
 DEMO_FRAMES = "demo_frames"  # optional batch key: (B, n_demo_frames, 3, H, W) float in [0, 1]
 OBS_DEMO = "observation.demo"  # the same, delivered by the environment as an observation (inference only)
@@ -129,14 +133,12 @@ class MosaicModel(nn.Module):
         return self.action_head(embeddings)
 
 
-@functools.cache
 def _task_of_variation() -> dict[str, str]:
-    """Variation description -> task name, from mosaic_data's tables ({} where mosaic_data is unavailable)."""
-    try:
-        from mosaic_data.tasks import TASKS
-    except Exception:  # the policy also trains on datasets from elsewhere
-        return {}
-    return {variation.description: name for name, task in TASKS.items() for variation in task.variations}
+    """Variation description -> task name, from the suite's plain-data table (never the simulator: training
+    must not import robosuite)."""
+    from mosaic_data.tasks.spec import task_of_variation
+
+    return task_of_variation()
 
 
 def _training_steps() -> int:
@@ -256,6 +258,24 @@ class MosaicPolicy(PreTrainedPolicy):
         if kwargs.get("dataset_meta") is not None and not _resuming():
             policy.ema_step.zero_()
         return policy
+
+    def generate_model_card(
+        self,
+        dataset_repo_id: str,
+        model_type: str,
+        license: str | None,
+        tags: list[str] | None,
+        cfg: "TrainPipelineConfig | None" = None,
+        dataset_meta: "LeRobotDatasetMetadata | None" = None,
+    ) -> "ModelCard":
+        """The Hub card ``push_model_to_hub`` writes: MOSAIC's (plugin install, the demonstration input,
+        mosaic-eval / lerobot-eval --env.type=mosaic), not LeRobot's real-robot ``lerobot-rollout`` card."""
+        from lerobot.policies.pretrained import _build_card_context
+
+        from .model_card import build_model_card
+
+        context = _build_card_context(cfg, dataset_meta, self.config.input_features, self.config.output_features)
+        return build_model_card(self.config, self.image_hw, dataset_repo_id, context, license, tags)
 
     # -- LeRobot interface ----------------------------------------------------------------------------------
 
@@ -391,8 +411,8 @@ class MosaicPolicy(PreTrainedPolicy):
         """Weights summing to 1: mean over the samples of a variation, then over the variations of a task,
         then over tasks (the paper's rule), whatever the batch composition.
 
-        A variation is a LeRobot task string; its task comes from mosaic_data's variation tables (strings
-        not found there count as one unnamed task).
+        A variation is a LeRobot task string; its task comes from the suite's table
+        (:mod:`mosaic_data.tasks.spec`; strings not found there count as one unnamed task).
         """
         if not self.config.balance_loss or "task" not in batch:
             return torch.full((n_samples,), 1.0 / n_samples, device=device)

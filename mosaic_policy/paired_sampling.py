@@ -187,8 +187,27 @@ class PairedDemoSampler:
     # -- decoding -------------------------------------------------------------------------------------------
 
     def _decode(self, episode: int, frame_indices: list[int]) -> Tensor:
-        """(n_frames, 3, H, W) uint8 frames of one demonstrator episode."""
+        """(n_frames, 3, H, W) uint8 frames of one demonstrator episode.
+
+        torchcodec and LeRobot report a damaged stream ("Could not push packet to decoder", a tolerance assertion
+        for frames that are missing) without the file's name; a training run must say which file to fix."""
         video_path = self.meta.root / self.meta.get_video_file_path(episode, self.image_key)
+        try:
+            frames = self._decode_frames(video_path, episode, frame_indices)
+        except Exception as error:  # several exception types for one cause: the file cannot give these frames
+            detail = (str(error).strip().splitlines() or [type(error).__name__])[0]
+            raise DemoDatasetError(
+                f"demonstrator video {video_path} (episode {episode}) does not decode ({detail}): the dataset is "
+                f"damaged: check it with `mosaic-data validate {self.meta.root}`, then collect it again"
+            ) from None
+        if frames.shape[0] != len(frame_indices):
+            raise DemoDatasetError(
+                f"demonstrator video {video_path} (episode {episode}) gave {frames.shape[0]} of {len(frame_indices)} "
+                f"frames: the dataset is damaged: check it with `mosaic-data validate {self.meta.root}`"
+            )
+        return frames
+
+    def _decode_frames(self, video_path, episode: int, frame_indices: list[int]) -> Tensor:
         timestamps = [self.from_timestamps[episode] + i / self.meta.fps for i in frame_indices]
         try:
             from lerobot.datasets.video_utils import VideoDecoderCache, decode_video_frames_torchcodec

@@ -7,7 +7,8 @@
 #   5. one-shot evaluation of that checkpoint beside the expert row (1 episode per variation), with a rerun
 #      recording of the demonstrations, the policy's attention and its actions -> outputs/eval/<task>
 set -euo pipefail
-source "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
+cd "$(dirname "${BASH_SOURCE[0]}")/.."  # paths below are relative to the repository root
+source scripts/setup.sh
 task="${1:-door}"
 datasets="outputs/datasets"
 mkdir -p outputs

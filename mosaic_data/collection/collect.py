@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.collection import CollectionError
-from mosaic_data.collection.merge import aggregate_into, merge_datasets
+from mosaic_data.collection.merge import aggregate_into, check_replaceable, merge_datasets, remove_stale_work
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
 from mosaic_data.collection.plan import MAX_EPISODES, CollectionSettings, DatasetJob, ShardSpec
 from mosaic_data.collection.schema import (
@@ -33,7 +33,7 @@ from mosaic_data.collection.schema import (
 )
 from mosaic_data.collection.worker import TEMPORARY_MARK, ShardResult, read_shard_records, worker_main
 from mosaic_data.process_env import scoped_environment
-from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
+from mosaic_data.tasks.spec import IMAGE_HEIGHT, IMAGE_WIDTH
 
 ALL_TASKS = "all"
 PLAN_NAME = "plan.json"
@@ -78,12 +78,15 @@ class CollectReport:
     rollout_s: float = 0.0
     write_s: float = 0.0
     worker_peak_rss_mb: float = 0.0
+    workers_used: int = 0
+    """Worker processes that actually ran: ``--workers`` at most, one per pending shard at most."""
 
 
 # ---------------------------------------------------------------------- input checks
 def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
     """The datasets to produce, after checking every input (raises ValueError naming the fix)."""
-    from mosaic_data.tasks import TASKS, get_task_class, validate_robot
+    from mosaic_data.tasks import TASK_NAMES as TASKS, validate_robot  # the table only, not the simulator
+    from mosaic_data.tasks import get_task_spec as get_task_class
 
     if request.task == ALL_TASKS:
         if request.variations is not None:
@@ -144,11 +147,16 @@ def _check_writable(output_dir: Path | None) -> None:
         raise ValueError(f"cannot write datasets under {target}: it is a file, not a folder (choose another --output-dir)")
 
 
-def _existing_dataset_state(root: Path, expected_sources: list[dict], request: CollectRequest) -> str:
-    """'absent', 'complete' (same sources), or raise unless ``--overwrite``; returns 'replace' with it."""
-    if not root.exists():
+def _existing_dataset_state(root: Path, expected_sources: list[dict], request: CollectRequest, resumable: Path | None = None) -> str:
+    """'absent', 'complete' (same sources), or raise unless ``--overwrite``; returns 'replace' with it.
+
+    ``resumable``: the staging folder of an unfinished run of these very settings (an interrupted
+    ``--overwrite``), which the error then says that ``--overwrite`` resumes.
+    """
+    if not root.exists() and not root.is_symlink():
         return "absent"
     if request.overwrite:
+        check_replaceable(root, flag="--output-dir")
         return "replace"
     if not is_lerobot_dataset(root):
         raise ValueError(f"{root} exists but is not a LeRobot dataset: move it away, choose another --output-dir, or add --overwrite")
@@ -162,6 +170,7 @@ def _existing_dataset_state(root: Path, expected_sources: list[dict], request: C
         raise ValueError(
             f"{root} was collected with other settings ({_settings_difference(sidecar.get('sources'), expected_sources)}): "
             "rerun with the same options, or add --overwrite to replace it"
+            + (f" (this resumes the unfinished --overwrite run in {resumable})" if resumable is not None else "")
         )
     return "complete"
 
@@ -183,10 +192,18 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
 
     started = time.perf_counter()
     jobs = plan_jobs(request)
-    states = {job.repo_id: _existing_dataset_state(job.root, [source_of(job)], request) for job in jobs}
+    for root in [job.root for job in jobs] + [dataset_root(request.output_dir, merged_repo_id_for(r)) for r in request.robots]:
+        remove_stale_work(root)  # a killed merge's leftovers (of processes that are gone): an old dataset comes back
+    states = {
+        job.repo_id: _existing_dataset_state(
+            job.root, [source_of(job)], request, resumable=job.staging_dir if _staged_same_settings(job) else None
+        )
+        for job in jobs
+    }
     for job in jobs:
         if states[job.repo_id] != "complete" and not request.overwrite:
             _check_staging(job)
+    discard = {job.repo_id for job in jobs if request.overwrite and not _staged_same_settings(job)}
     merged, merged_complete = [], []
     if request.task == ALL_TASKS:
         for robot in request.robots:
@@ -202,7 +219,7 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
     report.datasets = [
         _outcome(job, "complete, left alone") for job in jobs if states[job.repo_id] == "complete"
     ]
-    with _locked_staging(to_collect, request.overwrite) as pending_by_job:
+    with _locked_staging(to_collect, discard) as pending_by_job:
         pending = [spec for job in to_collect for spec in pending_by_job[job.repo_id]]
         total = sum(job.total_episodes for job in to_collect)
         already = total - sum(spec.num_episodes for spec in pending)
@@ -226,6 +243,7 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
             for job in to_collect:  # resumed runs may have every shard already
                 if remaining_shards[job.repo_id] == 0:
                     _finish_job(job)
+            report.workers_used = min(request.workers, len(pending))
             if pending:
                 # LeRobot's aggregation (torch, datasets) takes seconds to import: do it while the workers
                 # collect, not after the last shard.
@@ -242,16 +260,27 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
     return report
 
 
-def _check_staging(job: DatasetJob) -> None:
-    plan_path = job.staging_dir / PLAN_NAME
-    if not plan_path.is_file():
-        return
-    try:
-        import json
+def _staged_plan(job: DatasetJob) -> dict | None:
+    """The settings of the unfinished run in the job's staging folder, or None (no run, or an unreadable plan
+    written by a run that crashed before it started a shard)."""
+    import json
 
-        staged = json.loads(plan_path.read_text())
+    try:
+        return json.loads((job.staging_dir / PLAN_NAME).read_text())
     except (OSError, ValueError):
-        return  # unreadable plan: written by a crashed run before it finished; it is replaced
+        return None
+
+
+def _staged_same_settings(job: DatasetJob) -> bool:
+    """Whether an unfinished run of exactly these settings waits in staging: rerunning resumes it, even with
+    ``--overwrite`` (which must not throw away the finished shards of the very run it repeats)."""
+    return _staged_plan(job) == source_of(job)
+
+
+def _check_staging(job: DatasetJob) -> None:
+    staged = _staged_plan(job)
+    if staged is None:
+        return  # nothing staged, or an unreadable plan: it is replaced
     if staged != source_of(job):
         raise ValueError(
             f"an unfinished collection of {job.repo_id} with other settings is in {job.staging_dir} "
@@ -261,14 +290,17 @@ def _check_staging(job: DatasetJob) -> None:
 
 
 @contextmanager
-def _locked_staging(jobs: list[DatasetJob], overwrite: bool):
-    """Lock each job's staging folder, clean what a killed run left, and yield the shards still to do."""
+def _locked_staging(jobs: list[DatasetJob], discard: set[str]):
+    """Lock each job's staging folder, clean what a killed run left, and yield the shards still to do.
+
+    The staged runs of the repo ids in ``discard`` (``--overwrite`` of a run with other settings) start over.
+    """
     handles = []
     try:
         pending: dict[str, list[ShardSpec]] = {}
         for job in jobs:
             staging = job.staging_dir
-            if overwrite and staging.exists():
+            if job.repo_id in discard and staging.exists():
                 _lock(staging, handles, job)
                 shutil.rmtree(staging)
                 handles.pop().close()
@@ -280,8 +312,6 @@ def _locked_staging(jobs: list[DatasetJob], overwrite: bool):
             for leftover in shards_dir.iterdir():  # shards in flight when a previous run was killed
                 if TEMPORARY_MARK in leftover.name:
                     shutil.rmtree(leftover, ignore_errors=True)
-            for leftover in job.root.parent.glob(f".{job.root.name}.merging-*"):
-                shutil.rmtree(leftover, ignore_errors=True)
             pending[job.repo_id] = [spec for spec in job.shards() if not spec.is_done]
         yield pending
     finally:
@@ -307,7 +337,8 @@ def _finish_job(job: DatasetJob) -> None:
         records.extend(read_shard_records(spec.root))
     episodes = [{"episode_index": index, **record} for index, record in enumerate(records)]
     sidecar = build_sidecar(job.repo_id, [source_of(job)], episodes)
-    aggregate_into([(job.repo_id, spec.root) for spec in shards], job.repo_id, job.root, sidecar)
+    kept = f"the finished shards stay in {job.staging_dir}"
+    aggregate_into([(job.repo_id, spec.root) for spec in shards], job.repo_id, job.root, sidecar, kept=kept)
     shutil.rmtree(job.staging_dir, ignore_errors=True)
 
 

@@ -8,9 +8,10 @@ the default place is LeRobot's ``HF_LEROBOT_HOME``.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
-from mosaic_data.tasks.base import ACTION_DIM, CONTROL_FREQ_HZ, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
+from mosaic_data.tasks.spec import ACTION_DIM, CONTROL_FREQ_HZ, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
 
 REPO_NAMESPACE = "mosaic"
 CAMERA_KEY = "observation.images.agentview"
@@ -37,6 +38,29 @@ def dataset_features(image_height: int = IMAGE_HEIGHT, image_width: int = IMAGE_
     }
 
 
+REPO_ID_PART = re.compile(r"[A-Za-z0-9_](?:[A-Za-z0-9._-]{0,94}[A-Za-z0-9_])?")
+"""One half of a repo id: what the Hugging Face hub accepts (letters, digits, ``-``, ``_``, ``.``; not starting
+or ending with ``.`` or ``-``), which also makes it a plain, visible folder name: never ``..``, never a path."""
+
+
+def check_repo_id(repo_id: str, flag: str = "--repo-id") -> str:
+    """Return ``repo_id`` if it is ``namespace/name`` with safe characters, else raise ValueError naming ``flag``.
+
+    Every command that turns a repo id into a folder (``<output_dir>/<repo_id>``) or a hub repository calls this
+    first: an empty id (an unset shell variable), a bare ``mosaic``, ``../x`` or ``/abs/path`` would otherwise
+    point at the output folder itself, its namespace folder (holding other datasets) or outside it, and an
+    ``--overwrite`` would replace that. ``flag`` is the option the user gave it with, for the message.
+    """
+    text = repo_id if isinstance(repo_id, str) else str(repo_id)
+    parts = text.split("/")
+    if len(parts) == 2 and all(REPO_ID_PART.fullmatch(part) for part in parts) and ".." not in text and "--" not in text:
+        return text
+    raise ValueError(
+        f"{flag} {text!r} is not a repo id: give namespace/name such as mosaic/door_drawer_panda "
+        "(letters, digits, '-', '_', '.' in each part; no '..', '--', leading or trailing '.' or '-')"
+    )
+
+
 def repo_id_for(task: str, robot: str) -> str:
     return f"{REPO_NAMESPACE}/{task}_{robot}"
 
@@ -52,9 +76,14 @@ def default_output_dir() -> Path:
     return Path(HF_LEROBOT_HOME)
 
 
-def dataset_root(output_dir: Path | None, repo_id: str) -> Path:
-    """``<output_dir>/<repo_id>``, LeRobot's own layout (``LeRobotDataset(repo_id, root=...)`` takes this path)."""
-    return (default_output_dir() if output_dir is None else Path(output_dir)) / repo_id
+def dataset_root(output_dir: Path | None, repo_id: str, flag: str = "--repo-id") -> Path:
+    """``<output_dir>/<repo_id>``, LeRobot's own layout (``LeRobotDataset(repo_id, root=...)`` takes this path).
+
+    The repo id is checked (:func:`check_repo_id`) so that the result is always one dataset folder two levels
+    below ``output_dir``: never the output folder, a namespace folder or a place outside it.
+    """
+    check_repo_id(repo_id, flag)
+    return (default_output_dir() if output_dir is None else Path(output_dir)).expanduser() / repo_id
 
 
 def is_lerobot_dataset(root: Path) -> bool:
@@ -67,32 +96,63 @@ def schema_mismatch(root: Path, image_height: int, image_width: int) -> str | No
         info = json.loads((root / "meta" / "info.json").read_text())
     except (OSError, json.JSONDecodeError) as error:
         return f"its meta/info.json cannot be read ({error})"
-    features = info.get("features", {})
-    for name, expected in dataset_features(image_height, image_width).items():
-        found = features.get(name)
-        if found is None:
-            return f"it has no feature '{name}'"
-        if found.get("dtype") != expected["dtype"] or list(found.get("shape", [])) != list(expected["shape"]):
-            return (
-                f"its feature '{name}' is {found.get('dtype')} {list(found.get('shape', []))}, "
-                f"expected {expected['dtype']} {list(expected['shape'])}"
-            )
+    mismatch = feature_mismatch(info.get("features") or {}, dataset_features(image_height, image_width))
+    if mismatch is not None:
+        return f"its {mismatch}"
     if info.get("fps") != FPS:
         return f"it runs at {info.get('fps')} fps, expected {FPS}"
     return None
 
 
-def resolve_dataset(name_or_path: str | Path, output_dir: Path | None = None) -> Path:
-    """Root of a local dataset given as a folder or as a repo id under ``output_dir`` (default LeRobot's home)."""
+def feature_mismatch(found: dict[str, dict], expected: dict[str, dict], extra_allowed: bool = True) -> str | None:
+    """The first difference of a LeRobot feature dict from ``expected``, in full, or None.
+
+    Says the feature, what it is and what it should be (``feature 'x' is video [48, 88, 3], expected video
+    [56, 96, 3]``; ``feature 'x' is missing, expected float32 [7]``), never cut: this text ends up in one-line
+    errors whose point is the expected shape. Extra features count only without ``extra_allowed``.
+    """
+    for name, want in expected.items():
+        have = found.get(name)
+        wanted = f"{want.get('dtype')} {_shape_text(want)}"
+        if not isinstance(have, dict):
+            return f"feature '{name}' is missing, expected {wanted}"
+        if have.get("dtype") != want.get("dtype") or _shape_text(have) != _shape_text(want):
+            return f"feature '{name}' is {have.get('dtype')} {_shape_text(have)}, expected {wanted}"
+    if not extra_allowed:
+        for name, have in found.items():
+            if name not in expected:
+                return f"feature '{name}' ({have.get('dtype')} {_shape_text(have)}) is not expected"
+    return None
+
+
+def _shape_text(feature: dict) -> str:
+    shape = feature.get("shape")
+    return "without a shape" if shape is None else str([int(n) for n in shape])
+
+
+def resolve_dataset(name_or_path: str | Path, output_dir: Path | None = None, where_hint: str = "with --output-dir") -> Path:
+    """Root of a local dataset given as a folder or as a repo id under ``output_dir`` (default LeRobot's home).
+
+    ``where_hint`` ends the error's advice on repo ids: how the caller's command says where datasets live (the
+    default is mosaic-data's flag; a command without ``--output-dir`` names its own way, e.g. HF_LEROBOT_HOME).
+    """
     path = Path(name_or_path).expanduser()
     if is_lerobot_dataset(path):
         return path
-    candidate = dataset_root(output_dir, str(name_or_path))
-    if is_lerobot_dataset(candidate):
-        return candidate
+    looked = [path]
+    try:
+        candidate = dataset_root(output_dir, str(name_or_path))
+    except ValueError:  # not a repo id: only the folder reading applies
+        candidate = None
+    if candidate is not None:
+        if is_lerobot_dataset(candidate):
+            return candidate
+        if candidate.absolute() != path.absolute():
+            looked.append(candidate)
+    places = " and ".join(f"{place}/meta/info.json" for place in looked)
     raise ValueError(
-        f"no LeRobot dataset at {name_or_path!r} (looked for {path}/meta/info.json and {candidate}/meta/info.json): "
-        "give a dataset folder, or a repo id such as mosaic/door_panda with --output-dir"
+        f"no LeRobot dataset at {str(name_or_path)!r} (looked for {places}): "
+        f"give a dataset folder, or a repo id such as mosaic/door_panda {where_hint}"
     )
 
 

@@ -1,10 +1,15 @@
 """``mosaic-data validate``: is a dataset whole and consistent? Returns a readable list of problems.
 
-Checks, in order: LeRobot's metadata loads; the sidecar exists and agrees with it; the schema is MOSAIC's;
-every data parquet file reads (a truncated file does not) and holds the frames the metadata announces,
-episode by episode (frame indices, ``next.done`` on the last frame only, one variation and the matching
-task string per episode, no action jump that no motion explains); every episode count per variation matches the collection settings; every video
-file decodes, at the right size, to exactly the frames of the episodes it holds.
+Checks, in order: LeRobot's metadata loads; the sidecar exists, is MOSAIC's and matches the current episodes
+(also after LeRobot's own edits, which renumber episodes: see :func:`~mosaic_data.collection.metadata.read_aligned_sidecar`);
+the schema is MOSAIC's; every data parquet file reads (a truncated file does not) and holds the frames the
+metadata announces, episode by episode (frame indices, ``next.done`` on the last frame only, one variation and
+the matching task string per episode, the actions collected, no action jump that no motion explains); every
+episode count per variation matches the collection settings (episodes removed by an edit count as collected);
+every video file decodes, at the right size, to exactly the frames of the episodes it holds.
+
+What is unusual but not wrong (episodes removed by an edit, episodes without a sidecar record, a sidecar read
+from LeRobot's backup) goes to ``warnings``, not to the problems.
 """
 
 from __future__ import annotations
@@ -12,7 +17,15 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-from mosaic_data.collection.metadata import read_sidecar
+from mosaic_data.collection.metadata import (
+    SidecarError,
+    align_sidecar,
+    current_episodes,
+    listed,
+    load_sidecar,
+    locate_sidecar,
+    variation_descriptions,
+)
 from mosaic_data.collection.schema import ACTION_NAMES, CAMERA_KEY, schema_mismatch
 
 MAX_ACTION_JUMP = {"position": 0.1, "rotation": 0.5}
@@ -20,75 +33,107 @@ MAX_ACTION_JUMP = {"position": 0.1, "rotation": 0.5}
 radians for each rotation component. The experts move the target at most 1.5 cm and 0.08 rad per step (plus a
 slowly integrated tracking offset); a jump past these is a chart flip (axis-angle near pi) or corrupt data.
 The gripper is exempt: it switches between -1 and +1 in one step."""
+FRAME_COLUMNS = ("episode_index", "frame_index", "task_index", "action", "variation", "next.success", "next.done")
+"""Data columns the episode checks read."""
 
 
-def validate_dataset(root: Path) -> tuple[str, list[str]]:
-    """``(summary, problems)`` for the dataset at ``root``; no problems means it is valid."""
+def validate_dataset(root: Path, warnings: list[str] | None = None) -> tuple[str, list[str]]:
+    """``(summary, problems)`` for the dataset at ``root``; no problems means it is valid.
+
+    ``warnings``, if given, receives what is worth saying but does not make the dataset invalid.
+    """
     import json
 
     root = Path(root)
+    warnings = [] if warnings is None else warnings
     problems: list[str] = []
     try:
         info = json.loads((root / "meta" / "info.json").read_text())
     except (OSError, ValueError) as error:
         return "", [f"meta/info.json cannot be read: {error}"]
-    sidecar = read_sidecar(root)
-    if sidecar is None:
-        problems.append("meta/mosaic.json is missing or unreadable: this is not a dataset made by `mosaic-data collect`")
-        sidecar = {"sources": [], "episodes": [], "tasks": {}}
-    sources = sidecar.get("sources") or []
+    if not isinstance(info, dict) or not isinstance(info.get("features"), dict):
+        return "", ["meta/info.json has no feature table: it is not a LeRobot v3 dataset"]
+    try:
+        sidecar_file, from_backup = locate_sidecar(root)
+        sidecar = load_sidecar(sidecar_file)
+    except SidecarError as error:
+        problems.append(str(error))
+        sidecar_file, from_backup, sidecar = None, False, None
+    sources = sidecar["sources"] if sidecar is not None else []
     if sources:
         settings = sources[0]["settings"]
         mismatch = schema_mismatch(root, settings["image_height"], settings["image_width"])
         if mismatch is not None:
             problems.append(f"schema: {mismatch}")
-    episodes_meta = _read_parquet_folder(root / "meta" / "episodes", problems)
-    data = _read_parquet_folder(root / "data", problems)
+    episodes_meta = _read_parquet_folder(root, "meta/episodes", problems)
+    data = _read_parquet_folder(root, "data", problems)
     tasks = _read_tasks(root, problems)
     total_episodes, total_frames = info.get("total_episodes"), info.get("total_frames")
     if episodes_meta is not None and len(episodes_meta) != total_episodes:
         problems.append(f"meta/episodes lists {len(episodes_meta)} episodes, info.json says {total_episodes}")
     if data is not None and len(data) != total_frames:
         problems.append(f"data holds {len(data)} frames, info.json says {total_frames}")
-    records = sidecar.get("episodes", [])
-    if sidecar is not None and len(records) != total_episodes:
-        problems.append(f"meta/mosaic.json lists {len(records)} episodes, info.json says {total_episodes}")
-    descriptions = {
-        (task, variation["index"]): variation["description"]
-        for task, table in sidecar.get("tasks", {}).items()
-        for variation in table["variations"]
-    }
-    if data is not None:
+    records: list[dict] = []
+    if data is not None and (missing := [name for name in FRAME_COLUMNS if name not in data.columns]):
+        problems.append(f"data/ has no column {', '.join(missing)}: it is not MOSAIC's schema, so its episodes were not checked")
+        data = None
+    if sidecar is not None and data is not None:
+        current = current_episodes(data, tasks)
+        aligned = align_sidecar(sidecar, current, sidecar_file, from_backup)
+        warnings.extend(aligned.warnings(root))
+        records = aligned.sidecar["episodes"]
+        if current and not records:
+            problems.append(f"{sidecar_file} describes none of the {len(current)} episodes: it belongs to another dataset")
+        descriptions = variation_descriptions(sidecar)
         _check_frames(data, records, tasks, descriptions, problems)
-    _check_counts(sources, records, problems)
+        if aligned.changed_data:
+            problems.append(
+                f"episodes {listed(aligned.changed_data)}: their actions differ from the ones collected (data_digest "
+                "in meta/mosaic.json): the data was changed after collection; collect the dataset again"
+            )
+        by_description = {description: key for key, description in descriptions.items()}
+        robots, without_record = sidecar["robots"], set(aligned.unrecorded)
+        unrecorded = [  # (task, robot, variation); one robot per LeRobot dataset: the sidecar's, if it names one
+            (by_description[episode.task][0], robots[0], by_description[episode.task][1])
+            for episode in current
+            if episode.index in without_record and episode.task in by_description and len(robots) == 1
+        ]
+        _check_counts(sources, records, aligned.sidecar.get("removed_episodes", []), unrecorded, problems)
     if episodes_meta is not None:
         _check_videos(root, info, episodes_meta, problems)
     collected_variations = {(record["task"], record["variation"]) for record in records}
+    task_names = ", ".join(sidecar["tasks"]) if sidecar is not None else ""
+    robot_names = ", ".join(sidecar["robots"]) if sidecar is not None else ""
     summary = (
-        f"{total_episodes} episodes, {total_frames} frames, "
-        f"{len(collected_variations)} variations of {', '.join(sidecar.get('tasks', {})) or 'no task'}, "
-        f"robots {', '.join(sidecar.get('robots', [])) or 'unknown'}"
+        f"{_plural(total_episodes, 'episode')}, {_plural(total_frames, 'frame')}, "
+        f"{_plural(len(collected_variations), 'variation')} of {task_names or 'no known task'}, "
+        f"robots {robot_names or 'unknown'}"
     )
     return summary, problems
 
 
-def _read_parquet_folder(folder: Path, problems: list[str]):
+def _read_parquet_folder(root: Path, folder: str, problems: list[str]):
+    """All parquet files of ``root/folder`` as one frame, or None (with the reason in ``problems``)."""
     import pandas as pd
     import pyarrow.parquet as pq
 
-    files = sorted(folder.glob("*/*.parquet"))
+    files = sorted((root / folder).glob("*/*.parquet"))
     if not files:
-        problems.append(f"{folder.name}: no parquet files")
+        problems.append(f"{folder}/: no parquet files")
         return None
     tables = []
     for path in files:
         try:
             tables.append(pq.read_table(path).to_pandas())
         except Exception as error:  # pyarrow raises several types for truncated or garbled files
-            problems.append(f"{path.relative_to(folder.parent.parent if folder.name == 'episodes' else folder.parent)} cannot be read ({str(error).splitlines()[0]})")
+            problems.append(f"{path.relative_to(root)} cannot be read ({_first_line(error)})")
     if len(tables) != len(files):
         return None
     return pd.concat(tables, ignore_index=True)
+
+
+def _first_line(error: BaseException) -> str:
+    return (str(error).strip().splitlines() or [type(error).__name__])[0]
 
 
 def _read_tasks(root: Path, problems: list[str]) -> dict[int, str]:
@@ -97,7 +142,7 @@ def _read_tasks(root: Path, problems: list[str]) -> dict[int, str]:
     try:
         tasks = pd.read_parquet(root / "meta" / "tasks.parquet")
     except Exception as error:
-        problems.append(f"meta/tasks.parquet cannot be read ({str(error).splitlines()[0]})")
+        problems.append(f"meta/tasks.parquet cannot be read ({_first_line(error)})")
         return {}
     return {int(index): str(task) for task, index in zip(tasks.index, tasks["task_index"])}
 
@@ -131,9 +176,6 @@ def _check_frames(data, records: list[dict], tasks: dict[int, str], descriptions
         expected = descriptions.get((record["task"], record["variation"]))
         if task_strings != {expected}:
             problems.append(f"{where}: task string {sorted(task_strings)}, expected {expected!r}")
-    unknown = sorted(set(by_episode) - {record["episode_index"] for record in records})
-    if unknown:
-        problems.append(f"episodes {unknown[:5]} are in data/ but not in meta/mosaic.json")
 
 
 def action_jumps(actions) -> dict[str, float]:
@@ -158,24 +200,46 @@ def _check_action_jumps(actions, where: str, problems: list[str]) -> None:
             )
 
 
-def _check_counts(sources: list[dict], records: list[dict], problems: list[str]) -> None:
-    counts = Counter((record["task"], record["robot"], record["variation"]) for record in records)
+def _check_counts(
+    sources: list[dict], records: list[dict], removed: list[dict], unrecorded: list[tuple], problems: list[str]
+) -> None:
+    """Episodes per (task, robot, variation) against the collection settings. Those an edit removed (their records
+    are kept) and those without a record (known by task string) count as collected: the warnings name them."""
+    def key(record: dict) -> tuple:
+        return record["task"], record["robot"], record["variation"]
+
+    counts = Counter(map(key, records))
+    gone = Counter(map(key, removed))
+    extra = Counter(unrecorded)
     expected: Counter = Counter()  # a merged dataset may hold several sources of the same variation
     for source in sources:
         for variation in source["settings"]["variations"]:
             expected[(source["task"], source["robot"], variation)] += source["settings"]["episodes_per_variation"]
     for (task, robot, variation), wanted in sorted(expected.items()):
-        found = counts.get((task, robot, variation), 0)
-        if found != wanted:
-            problems.append(f"{task}/{robot} variation {variation}: {found} episodes, expected {wanted}")
+        here = counts[(task, robot, variation)] + extra[(task, robot, variation)]
+        removed_here = gone[(task, robot, variation)]
+        if here + removed_here != wanted:
+            also = f" (and {removed_here} removed after collection)" if removed_here else ""
+            problems.append(f"{task}/{robot} variation {variation}: {here} episodes{also}, expected {wanted}")
     seeds = Counter((record["task"], record["robot"], record["variation"], record["seed"]) for record in records)
-    duplicates = [key for key, count in seeds.items() if count > 1]
-    if duplicates:
-        problems.append(f"{len(duplicates)} episodes appear twice (same task, robot, variation and seed), e.g. {duplicates[0]}")
+    repeated = [(seed_key, count) for seed_key, count in seeds.items() if count > 1]
+    if repeated:
+        (task, robot, variation, seed), count = repeated[0]
+        problems.append(
+            f"{_plural(len(repeated), 'episode')} {'is' if len(repeated) == 1 else 'are'} in the dataset more than once "
+            f"(same task, robot, variation and seed), e.g. {task}/{robot} variation {variation} seed {seed} ({count} times)"
+        )
+
+
+def _plural(number: int, noun: str) -> str:
+    return f"{number} {noun}{'' if number == 1 else 's'}"
 
 
 def _check_videos(root: Path, info: dict, episodes_meta, problems: list[str]) -> None:
-    video_keys = [key for key, feature in info["features"].items() if feature["dtype"] == "video"]
+    video_keys = [key for key, feature in info["features"].items() if isinstance(feature, dict) and feature.get("dtype") == "video"]
+    if video_keys and "video_path" not in info:
+        problems.append("meta/info.json has video features but no video_path: the videos cannot be found")
+        return
     for key in video_keys:
         height, width = info["features"][key]["shape"][:2]
         chunk_column, file_column = f"videos/{key}/chunk_index", f"videos/{key}/file_index"
@@ -189,8 +253,8 @@ def _check_videos(root: Path, info: dict, episodes_meta, problems: list[str]) ->
                 problems.append(f"{relative} decodes to {decoded} frames, its episodes need {frames}")
             elif shape != (height, width):
                 problems.append(f"{relative} frames are {shape[0]}x{shape[1]}, the schema says {height}x{width}")
-    if key_missing := [key for key in video_keys if key != CAMERA_KEY]:
-        problems.append(f"unexpected video features {key_missing}")
+    if unexpected := [key for key in video_keys if key != CAMERA_KEY]:
+        problems.append(f"video features {listed(unexpected)} are not MOSAIC's (its only camera is {CAMERA_KEY})")
 
 
 def _count_video_frames(path: Path) -> tuple[int, tuple[int, int] | None, str | None]:

@@ -1,25 +1,87 @@
 """``mosaic-data view``: one episode (or an agent/demonstrator pair) as a rerun recording with a blueprint.
 
-Frames come from LeRobot's own reader, so what you see is what a policy trained on the dataset sees. With
-``--pair``, a demonstrator episode of the same variation (same LeRobot task string) is logged beside the
-agent's, both starting at time 0 on the shared ``time`` timeline.
+Frames come from LeRobot's own reader, so what you see is what a policy trained on the dataset sees (stored as
+JPEG in the recording). With ``--pair``, a demonstrator episode of the same variation (same LeRobot task
+string) is logged beside the agent's, both starting at time 0 on the shared ``time`` timeline.
+
+Three ways out: ``--save`` writes an ``.rrd`` file, ``--web`` serves rerun's web viewer on localhost until
+Ctrl-C (for a machine without a display, e.g. over ssh with a forwarded port), and by default the native viewer
+is spawned, which needs a display: without one the command stops at once and says so.
 """
 
 from __future__ import annotations
 
+import os
+import socket
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 
-from mosaic_data.collection.metadata import read_sidecar
+from mosaic_data.collection.metadata import listed, read_aligned_sidecar
 from mosaic_data.collection.schema import ACTION_NAMES, CAMERA_KEY, FPS, is_lerobot_dataset, repo_id_of
 
 OTHER_ROBOT = {"panda": "sawyer", "sawyer": "panda"}
 
 
-def view_episode(root: Path, episode: int, pair: bool = False, pair_root: Path | None = None, save: Path | None = None) -> str:
-    """Log the episode (and its pair) to rerun; save an ``.rrd`` or open the viewer. Returns what was shown."""
+@dataclass(frozen=True)
+class WebPorts:
+    """Where ``--web`` serves: rerun's web viewer (HTTP) and the gRPC server it reads the recording from."""
+
+    web: int = 9090
+    grpc: int = 9876
+
+    def url(self) -> str:
+        """The address to open in a browser: the viewer, told where the recording is served."""
+        return f"http://localhost:{self.web}/?url={quote(f'rerun+http://localhost:{self.grpc}/proxy', safe='')}"
+
+
+def has_display() -> bool:
+    """Whether rerun's native viewer can open a window. Only Linux is checked: without X11 or Wayland the
+    spawned viewer cannot start, and the command used to wait for it forever."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def check_port_free(port: int, option: str) -> None:
+    """Raise a one-line ValueError if ``port`` cannot be served on (rerun only logs an error, then serves nothing)."""
+    if not 1 <= port <= 65535:
+        raise ValueError(f"{option} must be a port number in 1..65535, got {port}")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does: a closed port is free
+        try:
+            probe.bind(("0.0.0.0", port))
+        except OSError as error:
+            raise ValueError(f"port {port} is not free ({error.strerror}): choose another with {option}") from None
+
+
+def default_save_name(root: Path, episode: int, pair: bool) -> str:
+    """File name suggested when ``--save`` names a folder."""
+    return f"{root.name}_episode_{episode}{'_pair' if pair else ''}.rrd"
+
+
+def view_episode(
+    root: Path,
+    episode: int,
+    pair: bool = False,
+    pair_root: Path | None = None,
+    save: Path | None = None,
+    web: WebPorts | None = None,
+    announce: Callable[[str], None] = lambda line: print(line, flush=True),
+) -> str:
+    """Log the episode (and its pair) to rerun: save an ``.rrd``, serve the web viewer, or spawn the viewer.
+
+    With ``web`` this blocks, serving, until Ctrl-C (the servers live as long as the recording stream);
+    ``announce`` gets the line with the URL first. Returns what was shown (or served).
+    """
     import rerun as rr
+
+    from mosaic_data.recording_files import rerun_file
 
     sidecar = _sidecar(root)
     record = _episode_record(sidecar, episode, root)
@@ -31,34 +93,54 @@ def view_episode(root: Path, episode: int, pair: bool = False, pair_root: Path |
         if partner is None:
             raise ValueError(f"{pair_root} has no episode of {record['task']} variation {record['variation']} to pair with")
         shown.append((partner["robot"], pair_root, partner))
-    recording = rr.RecordingStream("mosaic_dataset", recording_id=f"{repo_id_of(root)}/episode_{episode}")
+    application_id, recording_id = "mosaic_dataset", f"{repo_id_of(root)}/episode_{episode}"
     blueprint = _blueprint([role for role, _, _ in shown])
-    if save is not None:
-        save.parent.mkdir(parents=True, exist_ok=True)
-        recording.save(str(save), default_blueprint=blueprint)
-    else:
-        recording.spawn(default_blueprint=blueprint)
-    for role, dataset_root, episode_record in shown:
-        _log_episode(recording, role, dataset_root, episode_record, sidecar_of=_sidecar(dataset_root))
-    recording.flush()
-    description = _description(sidecar, record)
     names = ", ".join(f"{role} episode {r['episode_index']}" for role, _, r in shown)
-    target = f"saved to {save} (open with: rerun {save})" if save is not None else "sent to the rerun viewer"
-    return f"{names} of '{description}' {target}"
+    shown_what = f"{names} of '{_description(sidecar, record)}'"
+
+    def log_all(recording) -> None:
+        for role, dataset_root, episode_record in shown:
+            _log_episode(recording, role, dataset_root, episode_record, sidecar_of=_sidecar(dataset_root))
+
+    if save is not None:
+        with rerun_file(save, application_id, blueprint, recording_id=recording_id) as recording:
+            log_all(recording)
+        return f"{shown_what} saved to {save} (open with: rerun {save})"
+    recording = rr.RecordingStream(application_id, recording_id=recording_id)
+    if web is not None:
+        check_port_free(web.web, "--web-port")
+        check_port_free(web.grpc, "--grpc-port")
+        recording.serve_grpc(grpc_port=web.grpc, default_blueprint=blueprint)
+        rr.serve_web_viewer(web_port=web.web, open_browser=False, connect_to=f"rerun+http://localhost:{web.grpc}/proxy")
+        log_all(recording)
+        recording.flush()
+        announce(f"{shown_what} served at {web.url()} (open it in a browser; Ctrl-C to stop)")
+        try:
+            while True:
+                time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            recording.disconnect()
+        return "stopped serving"
+    recording.spawn(default_blueprint=blueprint)
+    log_all(recording)
+    recording.flush()
+    return f"{shown_what} sent to the rerun viewer"
 
 
 def _sidecar(root: Path) -> dict:
-    sidecar = read_sidecar(root) if is_lerobot_dataset(root) else None
-    if sidecar is None:
-        raise ValueError(f"{root} is not a dataset made by `mosaic-data collect` (no meta/mosaic.json)")
-    return sidecar
+    """The sidecar matched to the current LeRobot episodes (also after lerobot-edit-dataset renumbered them)."""
+    if not is_lerobot_dataset(root):
+        raise ValueError(f"{root} is not a LeRobot dataset (no meta/info.json)")
+    return read_aligned_sidecar(root).sidecar
 
 
 def _episode_record(sidecar: dict, episode: int, root: Path) -> dict:
-    episodes = sidecar["episodes"]
-    if not 0 <= episode < len(episodes):
-        raise ValueError(f"--episode {episode} is out of range: {root} has episodes 0..{len(episodes) - 1}")
-    return episodes[episode]
+    records = {record["episode_index"]: record for record in sidecar["episodes"]}
+    if episode not in records:
+        raise ValueError(f"--episode {episode} is not an episode of {root} with a sidecar record: choose one of {listed(sorted(records))}")
+    return records[episode]
 
 
 def _sibling_of_other_robot(root: Path, robot: str) -> Path:
@@ -83,28 +165,32 @@ def _description(sidecar: dict, record: dict) -> str:
 
 
 def _blueprint(roles: list[str]):
+    """One column per role, its episode description on top.
+
+    Each text view gets one document: rerun shows a single text document per view, and a shared ``episode``
+    view over ``/description`` (both roles' documents) showed "Can only show one text document at a time".
+    """
     import rerun.blueprint as rrb
 
     columns = [
         rrb.Vertical(
+            rrb.TextDocumentView(origin=f"/description/{role}", name=f"{role}: episode"),
             rrb.Spatial2DView(origin=f"/{role}/camera", name=f"{role}: agentview"),
             rrb.TimeSeriesView(origin=f"/{role}/action", name=f"{role}: action (target pose, gripper)"),
             rrb.TimeSeriesView(origin=f"/{role}/state", name=f"{role}: state"),
             rrb.TimeSeriesView(origin=f"/{role}/success", name=f"{role}: success"),
-            row_shares=[3, 2, 2, 1],
+            row_shares=[2, 4, 2, 2, 1],
         )
         for role in roles
     ]
-    return rrb.Blueprint(
-        rrb.Horizontal(*columns, rrb.TextDocumentView(origin="/description", name="episode")),
-        rrb.TimePanel(timeline="time"),
-        collapse_panels=True,
-    )
+    return rrb.Blueprint(rrb.Horizontal(*columns), rrb.TimePanel(timeline="time"), collapse_panels=True)
 
 
 def _log_episode(recording, role: str, root: Path, record: dict, sidecar_of: dict) -> None:
     import rerun as rr
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from mosaic_data.recording_files import jpeg_bytes
 
     dataset = LeRobotDataset(repo_id_of(root), root=root, episodes=[record["episode_index"]])
     recording.log(
@@ -123,7 +209,7 @@ def _log_episode(recording, role: str, root: Path, record: dict, sidecar_of: dic
         recording.set_time("frame", sequence=step)
         recording.set_time("time", duration=step / FPS)
         image = (frame[CAMERA_KEY].permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
-        recording.log(f"/{role}/camera", rr.Image(image))
+        recording.log(f"/{role}/camera", rr.EncodedImage(contents=jpeg_bytes(image), media_type="image/jpeg"))
         for name, value in zip(ACTION_NAMES, frame["action"].tolist()):
             recording.log(f"/{role}/action/{name}", rr.Scalars(value))
         state = frame["observation.state"].tolist()

@@ -1,32 +1,62 @@
-"""The MOSAIC task suite: one module per task, each a robosuite environment class on :mod:`.base`."""
+"""The MOSAIC task suite: one module per task, each a robosuite environment class on :mod:`.base`.
+
+The simulator loads only when a task class is asked for (``TASKS``, ``get_task_class``, ``make_task_env``, the
+class names): names, variations and conventions come from :mod:`.spec`, so dataset tools, command lines and
+the policy read the suite's table without importing robosuite (about half a second, and its import warnings).
+"""
 
 from __future__ import annotations
 
-from mosaic_data.tasks.base import ROBOTS, MosaicTaskEnv, Variation, validate_robot
-from mosaic_data.tasks.basketball import Basketball
-from mosaic_data.tasks.door import Door
-from mosaic_data.tasks.drawer import Drawer
-from mosaic_data.tasks.nut_assembly import NutAssembly
-from mosaic_data.tasks.pick_place import PickPlace
-from mosaic_data.tasks.press_button import PressButton
-from mosaic_data.tasks.stack_block import StackBlock
+import importlib
+from typing import TYPE_CHECKING, Any
 
-TASKS: dict[str, type[MosaicTaskEnv]] = {
-    "door": Door,
-    "drawer": Drawer,
-    "press_button": PressButton,
-    "stack_block": StackBlock,
-    "basketball": Basketball,
-    "nut_assembly": NutAssembly,
-    "pick_place": PickPlace,
+from mosaic_data.tasks.spec import (
+    ROBOTS,
+    TASK_NAMES,
+    TASK_SPECS,
+    VARIATIONS,
+    TaskSpec,
+    Variation,
+    get_task_spec,
+    validate_robot,
+)
+
+if TYPE_CHECKING:
+    from mosaic_data.tasks.base import MosaicTaskEnv
+
+_CLASS_NAMES: dict[str, str] = {
+    "door": "Door",
+    "drawer": "Drawer",
+    "press_button": "PressButton",
+    "stack_block": "StackBlock",
+    "basketball": "Basketball",
+    "nut_assembly": "NutAssembly",
+    "pick_place": "PickPlace",
 }
-"""Task key -> environment class, in the paper's order."""
+"""Task key -> its environment class, defined in ``mosaic_data.tasks.<task key>``."""
 
 
 def get_task_class(task: str) -> type[MosaicTaskEnv]:
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r}: choose one of {', '.join(TASKS)}")
-    return TASKS[task]
+    """The robosuite environment class of ``task`` (imports the simulator)."""
+    if task not in _CLASS_NAMES:
+        raise ValueError(f"unknown task {task!r}: choose one of {', '.join(TASK_NAMES)}")
+    return getattr(importlib.import_module(f"mosaic_data.tasks.{task}"), _CLASS_NAMES[task])
+
+
+def __getattr__(name: str) -> Any:
+    """``TASKS``, ``MosaicTaskEnv`` and the task classes, imported on first use (they load robosuite)."""
+    if name == "TASKS":
+        tasks = {task: get_task_class(task) for task in TASK_NAMES}
+        globals()["TASKS"] = tasks
+        return tasks
+    if name == "MosaicTaskEnv":
+        from mosaic_data.tasks.base import MosaicTaskEnv
+
+        return MosaicTaskEnv
+    for task, class_name in _CLASS_NAMES.items():
+        if name == class_name:
+            return get_task_class(task)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def select_variations(
@@ -37,10 +67,10 @@ def select_variations(
     if task == "all":
         if variations is not None:
             raise ValueError(f"{variations_option} applies to one task; drop it with {task_option} all")
-        return {name: [v.index for v in task_class.variations] for name, task_class in TASKS.items()}
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r} ({task_option}): choose one of {', '.join(TASKS)} or 'all'")
-    count = len(TASKS[task].variations)
+        return {name: [v.index for v in table] for name, table in VARIATIONS.items()}
+    if task not in VARIATIONS:
+        raise ValueError(f"unknown task {task!r} ({task_option}): choose one of {', '.join(TASK_NAMES)} or 'all'")
+    count = len(VARIATIONS[task])
     if variations is None:
         return {task: list(range(count))}
     if not variations or any(not 0 <= v < count for v in variations):
@@ -56,4 +86,18 @@ def make_task_env(task: str, variation: int = 0, robot: str = "panda", **kwargs)
     return task_class(variation=variation, robot=robot, **kwargs)
 
 
-__all__ = ["ROBOTS", "TASKS", "MosaicTaskEnv", "Variation", "get_task_class", "make_task_env", "select_variations"]
+__all__ = [
+    "ROBOTS",
+    "TASKS",
+    "TASK_NAMES",
+    "TASK_SPECS",
+    "VARIATIONS",
+    "MosaicTaskEnv",
+    "TaskSpec",
+    "Variation",
+    "get_task_class",
+    "get_task_spec",
+    "make_task_env",
+    "select_variations",
+    "validate_robot",
+]

@@ -30,43 +30,41 @@ import copy
 import logging
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import mujoco
 import numpy as np
-from robosuite.controllers import load_composite_controller_config
-from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
-from robosuite.models.arenas import TableArena
-from robosuite.models.tasks import ManipulationTask
-from robosuite.utils.log_utils import ROBOSUITE_DEFAULT_LOGGER
 from scipy.spatial.transform import Rotation
 
-from mosaic_data.tasks.render_meshes import VISUAL_FACE_BUDGET, simplify_visual_meshes
+from mosaic_data.tasks.robosuite_log import quiet_robosuite_import
+
+quiet_robosuite_import()  # before the first robosuite import: its import-time warnings do not apply here
+
+from robosuite.controllers import load_composite_controller_config  # noqa: E402
+from robosuite.environments.manipulation.manipulation_env import ManipulationEnv  # noqa: E402
+from robosuite.models.arenas import TableArena  # noqa: E402
+from robosuite.models.tasks import ManipulationTask  # noqa: E402
+from robosuite.utils.log_utils import ROBOSUITE_DEFAULT_LOGGER  # noqa: E402
+
+from mosaic_data.tasks.render_meshes import VISUAL_FACE_BUDGET, simplify_visual_meshes  # noqa: E402
+from mosaic_data.tasks.spec import (  # noqa: E402, F401  (the suite's conventions, re-exported here)
+    ACTION_DIM,
+    CONTROL_FREQ_HZ,
+    GRIPPER_CLOSED,
+    GRIPPER_OPEN,
+    IMAGE_HEIGHT,
+    IMAGE_WIDTH,
+    ROBOTS,
+    STATE_DIM,
+    Variation,
+    check_variation,
+    validate_robot,
+)
 
 # robosuite logs every controller load at INFO; keep warnings and errors only.
 ROBOSUITE_DEFAULT_LOGGER.setLevel(logging.WARNING)
 
-ROBOTS: dict[str, str] = {"panda": "Panda", "sawyer": "Sawyer"}
-"""Robot key -> robosuite robot name. The Panda is the agent, the Sawyer the demonstrator."""
-
-CONTROL_FREQ_HZ = 20
-IMAGE_HEIGHT = 100
-IMAGE_WIDTH = 180
-STATE_DIM = 10
-ACTION_DIM = 7
-GRIPPER_OPEN = -1.0
-GRIPPER_CLOSED = 1.0
 OSC_STIFFNESS = 600.0
-
-
-@dataclass(frozen=True)
-class Variation:
-    """One variation of a task: its index, a description unique across the suite, and scene parameters."""
-
-    index: int
-    description: str
-    params: dict[str, Any] = field(default_factory=dict)
 
 
 GRIPPER_DOWN = Rotation.from_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]))
@@ -149,13 +147,7 @@ class MosaicTaskEnv(ManipulationEnv):
     # ------------------------------------------------------------------ validation
     @classmethod
     def validate_variation(cls, variation: int) -> int:
-        n = len(cls.variations)
-        if isinstance(variation, bool) or not isinstance(variation, (int, np.integer)) or not 0 <= variation < n:
-            raise ValueError(
-                f"unknown variation {variation!r} for task '{cls.task_name}': choose an integer in 0..{n - 1} "
-                f"(`mosaic-data tasks` lists them)"
-            )
-        return int(variation)
+        return check_variation(cls.task_name, len(cls.variations), variation)
 
     def set_variation(self, variation: int) -> None:
         """Switch to another variation of the same scene; it takes effect at the next reset.
@@ -353,12 +345,6 @@ class MosaicTaskEnv(ManipulationEnv):
 
     def set_joint_value(self, name: str, value: float) -> None:
         self.sim.data.qpos[self.joint_qpos_address(name)] = value
-
-
-def validate_robot(robot: str) -> str:
-    if robot not in ROBOTS:
-        raise ValueError(f"unknown robot {robot!r}: choose one of {', '.join(ROBOTS)}")
-    return robot
 
 
 def absolute_world_pose_controller(robot_name: str) -> dict:

@@ -44,14 +44,13 @@ from robosuite.models.objects import MujocoXMLObject
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
 from mosaic_data.tasks.fixtures import FixtureBuilder
+from mosaic_data.tasks.spec import BALL_NAMES, HOOP_NAMES, TASK_SPECS
 
 BALL_COLOURS: dict[str, tuple[float, float, float, float]] = {
     "orange": (0.95, 0.45, 0.05, 1.0),
     "blue": (0.12, 0.3, 0.95, 1.0),
     "green": (0.1, 0.72, 0.2, 1.0),
 }
-BALL_NAMES = tuple(BALL_COLOURS)
-HOOP_NAMES = ("near_left", "far_left", "near_right", "far_right")
 BALL_SCALE = 0.75
 BALL_RADIUS_M = 0.03 * BALL_SCALE
 """Meta-World's ball (radius 0.03 m) scaled down: its rim's hole has a radius of about 0.034 m."""
@@ -67,15 +66,6 @@ HOOP_SUNK_M = 0.07
 """The hoops' poles stand in holes in the table, so that their rims are within the Panda's top-down reach."""
 MIN_BALL_DISTANCE_M = 0.1
 HOOP_JITTER_M = 0.015
-
-
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for ball in BALL_NAMES:
-        for hoop in HOOP_NAMES:
-            description = f"drop the {ball} ball through the {hoop.replace('_', ' ')} hoop"
-            variations.append(Variation(len(variations), description, {"ball": ball, "hoop": hoop}))
-    return tuple(variations)
 
 
 def _build_ball(name: str, rgba) -> MujocoXMLObject:
@@ -134,8 +124,8 @@ def _build_hoop(name: str):
 
 class Basketball(MosaicTaskEnv):
     task_name: ClassVar[str] = "basketball"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 200
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["basketball"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["basketball"].horizon_steps
     # Each hoop's pole foot (x, y) and the yaw that turns its rim (built facing -x) towards the table's middle.
     hoop_poses: ClassVar[dict[str, tuple[float, float, float]]] = {
         "near_left": (-0.25, RIM_Y_M + RIM_OFFSET_M, np.pi / 2),

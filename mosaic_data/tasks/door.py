@@ -17,10 +17,9 @@ import numpy as np
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
 from mosaic_data.tasks.fixtures import FixtureBuilder
+from mosaic_data.tasks.spec import DOOR_NAMES, TASK_SPECS
 
-DOOR_NAMES = ("left", "right")
 DOOR_COLOURS = {"left": (0.32, 0.38, 0.52, 1.0), "right": (0.62, 0.36, 0.18, 1.0)}
-SWINGS = ("push", "pull")
 OPENING_PER_YAW = {"left": -1.0, "right": 1.0}
 SUCCESS_ANGLE_RAD = 0.4
 DOOR_SCALE = 0.6
@@ -33,21 +32,10 @@ _HANDLE_GRIP_X = 0.42
 """Point of the handle bar, past the door's free edge (0.365), where the experts push or hook."""
 
 
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for door in DOOR_NAMES:
-        for swing in SWINGS:
-            verb = "push the {door} door open, away from the robot" if swing == "push" else "pull the {door} door open, towards the robot"
-            variations.append(
-                Variation(len(variations), verb.format(door=door), {"door": door, "swing": swing})
-            )
-    return tuple(variations)
-
-
 class Door(MosaicTaskEnv):
     task_name: ClassVar[str] = "door"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 130
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["door"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["door"].horizon_steps
     # Where each door's hinge axis stands (x, y) at the centre of the instance distribution: close to the robot
     # and shifted to its left, where the Sawyer (whose arm barely reaches past y = -0.27 here) reaches both grips
     # (y from -0.23 to +0.45) as well as the Panda.

@@ -36,10 +36,8 @@ import numpy as np
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
 from mosaic_data.tasks.fixtures import FixtureBuilder
+from mosaic_data.tasks.spec import CABINET_NAMES, DRAWER_SIDES, TASK_SPECS
 
-CABINET_NAMES = ("green", "wooden")
-DRAWER_SIDES = ("left", "right")
-GOALS = ("open", "close")
 DRAWER_SCALE = 0.75
 """Meta-World's drawer scaled so that four fit side by side in the Panda's workspace."""
 SUCCESS_FRACTION = 0.9
@@ -73,18 +71,6 @@ _CABINET_MATERIALS = {
 }
 
 
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for cabinet in CABINET_NAMES:
-        for side in DRAWER_SIDES:
-            for goal in GOALS:
-                description = f"{goal} the {side} drawer of the {cabinet} cabinet"
-                variations.append(
-                    Variation(len(variations), description, {"cabinet": cabinet, "side": side, "goal": goal})
-                )
-    return tuple(variations)
-
-
 def drawer_key(cabinet: str, side: str) -> str:
     return f"{cabinet}_{side}"
 
@@ -94,8 +80,8 @@ DRAWER_KEYS = tuple(drawer_key(cabinet, side) for cabinet in CABINET_NAMES for s
 
 class Drawer(MosaicTaskEnv):
     task_name: ClassVar[str] = "drawer"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 200
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["drawer"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["drawer"].horizon_steps
     # Centre (x, y) of each cabinet's footprint at the centre of the instance distribution.
     # Shifted towards +y: the Sawyer's arm hangs to its left and loses accuracy low down on its far right.
     cabinet_xy: ClassVar[dict[str, tuple[float, float]]] = {"green": (0.11, 0.21), "wooden": (0.11, -0.16)}

@@ -42,14 +42,13 @@ from scipy.spatial.transform import Rotation
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
 from mosaic_data.tasks.fixtures import FixtureBuilder
+from mosaic_data.tasks.spec import NUT_NAMES, PEG_NAMES, TASK_SPECS
 
 NUT_COLOURS: dict[str, tuple[float, float, float, float]] = {
     "blue": (0.15, 0.3, 0.95, 1.0),
     "red": (0.9, 0.12, 0.1, 1.0),
     "green": (0.1, 0.75, 0.2, 1.0),
 }
-NUT_NAMES = tuple(NUT_COLOURS)
-PEG_NAMES = ("left", "middle", "right")
 
 
 ROBOSUITE_NUT_ASSEMBLY_TABLE_Z = 0.82
@@ -98,19 +97,10 @@ class ColouredRoundNut(RoundNutObject):
             material.set("specular", "0.4")
 
 
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for nut in NUT_NAMES:
-        for peg in PEG_NAMES:
-            description = f"put the {nut} nut on the {peg} peg"
-            variations.append(Variation(len(variations), description, {"nut": nut, "peg": peg}))
-    return tuple(variations)
-
-
 class NutAssembly(MosaicTaskEnv):
     task_name: ClassVar[str] = "nut_assembly"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 200
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["nut_assembly"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["nut_assembly"].horizon_steps
     # Where each peg's axis stands (x, y) at the centre of the instance distribution.
     peg_xy: ClassVar[dict[str, tuple[float, float]]] = {"left": (0.09, 0.18), "middle": (0.09, 0.0), "right": (0.09, -0.18)}
     # Region (x, y ranges) where the nuts' centres are drawn, in front of the robot.

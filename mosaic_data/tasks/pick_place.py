@@ -37,16 +37,13 @@ from robosuite.models.objects import Bin, BreadObject, CanObject, CerealObject, 
 from scipy.spatial.transform import Rotation
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
+from mosaic_data.tasks.spec import BIN_NAMES, ITEM_NAMES, TASK_SPECS
 
-ITEM_NAMES = ("milk", "bread", "cereal", "can")
 ITEM_CLASSES = {"milk": MilkObject, "bread": BreadObject, "cereal": CerealObject, "can": CanObject}
-ITEM_LABELS = {"milk": "milk carton", "bread": "bread loaf", "cereal": "cereal box", "can": "soda can"}
 ITEM_YAW_RAD = {name: np.pi / 2 for name in ITEM_NAMES}
 """Each item's nominal turn about z: its narrow side (its own y axis) along the world's x axis, so the hands,
 which are long along their closing direction, reach in between the items; the cereal box then shows its
 printed face to the camera."""
-BIN_NAMES = ("far_left", "mid_left", "mid_right", "far_right")
-BIN_LABELS = {"far_left": "far-left", "mid_left": "middle-left", "mid_right": "middle-right", "far_right": "far-right"}
 BIN_Y_M = (0.24, 0.08, -0.08, -0.24)
 """Bin centres along y (+y is the robot's left)."""
 BIN_OUTER_SIZE_M = (0.14, 0.14, 0.05)
@@ -65,19 +62,10 @@ class FixedBin(Bin):
         return attrs
 
 
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for item in ITEM_NAMES:
-        for bin_name in BIN_NAMES:
-            description = f"put the {ITEM_LABELS[item]} in the {BIN_LABELS[bin_name]} bin"
-            variations.append(Variation(len(variations), description, {"item": item, "bin": bin_name}))
-    return tuple(variations)
-
-
 class PickPlace(MosaicTaskEnv):
     task_name: ClassVar[str] = "pick_place"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 250
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["pick_place"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["pick_place"].horizon_steps
     slot_x_m: ClassVar[float] = -0.12
     bin_x_m: ClassVar[float] = 0.035
     item_jitter_m: ClassVar[float] = 0.01

@@ -34,12 +34,9 @@ import numpy as np
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
 from mosaic_data.tasks.fixtures import FixtureBuilder
+from mosaic_data.tasks.spec import MACHINE_NAMES, TASK_SPECS
 
-MACHINE_NAMES = ("left", "right")
-MACHINE_COLOUR_NAMES = {"left": "yellow", "right": "blue"}
 MACHINE_COLOURS = {"left": (0.85, 0.66, 0.12, 1.0), "right": (0.2, 0.36, 0.78, 1.0)}
-BUTTON_POSITIONS = ("left", "middle", "right")
-BUTTON_COLOUR_NAMES = ("red", "green", "white")
 BUTTON_COLOURS = ((0.8, 0.05, 0.05, 1.0), (0.05, 0.65, 0.12, 1.0), (0.9, 0.9, 0.9, 1.0))
 LAMP_OFF_RGBA = (0.12, 0.12, 0.12, 1.0)
 LAMP_ON_BRIGHTNESS = 1.25
@@ -75,22 +72,10 @@ SPRING_REF_M = -0.05
 bottom of the travel."""
 
 
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for machine in MACHINE_NAMES:
-        for button, (position, colour) in enumerate(zip(BUTTON_POSITIONS, BUTTON_COLOUR_NAMES)):
-            where = "in the middle of" if position == "middle" else f"on the {position} of"
-            description = f"press the {colour} button {where} the {MACHINE_COLOUR_NAMES[machine]} machine"
-            variations.append(
-                Variation(len(variations), description, {"machine": machine, "button": button, "colour": colour})
-            )
-    return tuple(variations)
-
-
 class PressButton(MosaicTaskEnv):
     task_name: ClassVar[str] = "press_button"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 120
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["press_button"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["press_button"].horizon_steps
     # Where each machine's middle button stands (x, y) at the centre of the instance distribution.
     machine_xy: ClassVar[dict[str, tuple[float, float]]] = {"left": (-0.02, 0.16), "right": (-0.02, -0.16)}
     placement_jitter_m: ClassVar[float] = 0.02

@@ -27,7 +27,6 @@ between the gripper and A). Stacking A on C, or another cube on B, is a failure.
 
 from __future__ import annotations
 
-import itertools
 from typing import ClassVar
 
 import numpy as np
@@ -35,13 +34,13 @@ from robosuite.models.objects import BoxObject
 from scipy.spatial.transform import Rotation
 
 from mosaic_data.tasks.base import MosaicTaskEnv, Variation
+from mosaic_data.tasks.spec import CUBE_NAMES, TASK_SPECS
 
 CUBE_COLOURS: dict[str, tuple[float, float, float, float]] = {
     "red": (0.85, 0.1, 0.1, 1.0),
     "green": (0.1, 0.7, 0.15, 1.0),
     "blue": (0.12, 0.25, 0.9, 1.0),
 }
-CUBE_NAMES = tuple(CUBE_COLOURS)
 CUBE_HALF_SIZE_M = 0.021
 MIN_CUBE_DISTANCE_M = 0.11
 """Centre-to-centre distance between any two cubes at the start of an instance."""
@@ -49,20 +48,10 @@ STACK_HEIGHT_TOLERANCE_M = 0.012
 """How far A's bottom may be from B's top (cubes settle into each other by a few millimetres)."""
 
 
-def _variations() -> tuple[Variation, ...]:
-    variations = []
-    for picked, base, distractor in itertools.permutations(CUBE_NAMES):
-        description = f"stack the {picked} block on the {base} block"
-        variations.append(
-            Variation(len(variations), description, {"picked": picked, "base": base, "distractor": distractor})
-        )
-    return tuple(variations)
-
-
 class StackBlock(MosaicTaskEnv):
     task_name: ClassVar[str] = "stack_block"
-    variations: ClassVar[tuple[Variation, ...]] = _variations()
-    horizon_steps: ClassVar[int] = 200
+    variations: ClassVar[tuple[Variation, ...]] = TASK_SPECS["stack_block"].variations
+    horizon_steps: ClassVar[int] = TASK_SPECS["stack_block"].horizon_steps
     # Region (x, y ranges) where the cubes' centres are drawn, in front of the robot.
     placement_x_range: ClassVar[tuple[float, float]] = (-0.08, 0.12)
     placement_y_range: ClassVar[tuple[float, float]] = (-0.18, 0.18)

@@ -15,17 +15,18 @@ import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
 
-from mosaic_data.demos import Demonstration
-from mosaic_data.envs import MosaicGymEnv
-from mosaic_data.tasks.base import ACTION_DIM, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
+from mosaic_data.tasks.spec import ACTION_DIM, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
 
-BASELINES = ("expert", "untrained")
-"""Sanity rows the evaluation can produce without a checkpoint."""
+from .options import BASELINES, EvaluationError  # noqa: F401  (defined there: light enough for --help)
+
+if TYPE_CHECKING:  # annotations only: the simulator loads when an episode needs it
+    from mosaic_data.demos import Demonstration
+    from mosaic_data.envs import MosaicGymEnv
 
 CAMERA_KEY = "observation.images.agentview"
 STATE_KEY = "observation.state"
@@ -34,8 +35,10 @@ PROVIDED = f"{CAMERA_KEY} (3xHxW, any size) and {STATE_KEY} ({STATE_DIM},)"
 """What the MOSAIC environments give a policy, for error messages."""
 
 
-class EvaluationError(ValueError):
-    """Bad evaluation input (checkpoint, task, variations, demo dataset): the message names the fix."""
+CHECKPOINT_FILES = ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json")
+"""What lerobot-train writes into every pretrained_model folder and loading a policy reads (plus the processors'
+state files that the two processor files name)."""
+INCOMPLETE_FIX = "the checkpoint is incomplete: copy the whole pretrained_model folder lerobot-train wrote, or retrain"
 
 
 @dataclass(frozen=True)
@@ -90,13 +93,18 @@ def resolve_checkpoint(path: str | Path) -> Path:
         if config_file.is_file():
             break
     else:
+        if any((path / name).exists() for name in CHECKPOINT_FILES):
+            raise EvaluationError(
+                f"{path / 'config.json'} is missing (no config.json beside the checkpoint's other files): "
+                f"{INCOMPLETE_FIX}"
+            )
         raise EvaluationError(
             f"{str(path)!r} is not a LeRobot policy checkpoint (no config.json): pass a folder such as "
             "outputs/train/<run>/checkpoints/last/pretrained_model"
         )
     read_config(candidate)
     if not (candidate / "model.safetensors").is_file():
-        raise EvaluationError(f"{str(candidate)!r} has no model.safetensors: the checkpoint is incomplete")
+        raise EvaluationError(f"{candidate / 'model.safetensors'} is missing: {INCOMPLETE_FIX}")
     return candidate
 
 
@@ -106,10 +114,51 @@ def read_config(checkpoint: Path) -> dict[str, Any]:
     try:
         config = json.loads(config_file.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError):
-        raise EvaluationError(f"{config_file} is not a readable policy config (corrupt JSON)") from None
+        raise EvaluationError(f"{config_file} is not a readable policy config (corrupt JSON): {INCOMPLETE_FIX}") from None
     if not isinstance(config, dict) or not isinstance(config.get("type"), str):
         raise EvaluationError(f"{config_file} names no policy type: pass a checkpoint written by lerobot-train")
     return config
+
+
+def check_checkpoint_files(checkpoint: Path) -> None:
+    """Every file loading the policy reads is there and whole, checked before any rollout (a checkpoint copied in
+    part, or cut short by a full disk, would otherwise fail in a worker after the evaluation started): the weights,
+    both processor pipelines and the state files they name; a safetensors file's header must parse and its tensors
+    must end exactly where the file does."""
+    for name in CHECKPOINT_FILES[2:]:
+        pipeline_file = checkpoint / name
+        if not pipeline_file.is_file():
+            raise EvaluationError(f"{pipeline_file} is missing: {INCOMPLETE_FIX}")
+        try:
+            steps = json.loads(pipeline_file.read_text()).get("steps", [])
+            state_files = [step["state_file"] for step in steps if isinstance(step, dict) and step.get("state_file")]
+        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, TypeError):
+            raise EvaluationError(f"{pipeline_file} is not a readable processor file (corrupt JSON): {INCOMPLETE_FIX}") from None
+        for state_file in state_files:
+            _check_safetensors(checkpoint / state_file)
+    _check_safetensors(checkpoint / "model.safetensors")
+
+
+def _check_safetensors(path: Path) -> None:
+    """A safetensors file: 8 bytes of header length, a JSON header, then the tensors' bytes to the file's end."""
+    if not path.is_file():
+        raise EvaluationError(f"{path} is missing: {INCOMPLETE_FIX}")
+    size = path.stat().st_size
+    with open(path, "rb") as handle:
+        prefix = handle.read(8)
+        length = int.from_bytes(prefix, "little") if len(prefix) == 8 else -1
+        if not 0 < length <= size - 8:
+            raise EvaluationError(f"{path} is truncated or damaged ({size} bytes, no readable header): {INCOMPLETE_FIX}")
+        try:
+            header = json.loads(handle.read(length))
+            ends = [int(entry["data_offsets"][1]) for key, entry in header.items() if key != "__metadata__"]
+        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, KeyError, IndexError, TypeError, ValueError):
+            raise EvaluationError(f"{path} is truncated or damaged (its header does not parse): {INCOMPLETE_FIX}") from None
+    expected = 8 + length + max(ends, default=0)
+    if expected != size:
+        raise EvaluationError(
+            f"{path} is truncated or damaged ({size} bytes, its header describes {expected}): {INCOMPLETE_FIX}"
+        )
 
 
 @functools.cache

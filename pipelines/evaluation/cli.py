@@ -11,7 +11,10 @@ variation and per task (mean +- std) and the share of episodes that did the wron
 Markdown (with a confusion matrix per task) and a heat map PNG per task, optionally a rerun recording with the
 policy's attention.
 
-Exit status: 0 when the evaluation ran, 2 on bad input (one line naming the fix), 130 when interrupted.
+Exit status: 0 when the evaluation ran, 2 on bad input (one line naming the fix), 1 when a rollout worker died
+(e.g. killed by the out-of-memory killer), 130 when interrupted. Every output path is checked before any work,
+and an evaluation that stops early writes the episodes that finished as a partial report (``"partial"`` in the
+JSON) and says so.
 """
 
 from __future__ import annotations
@@ -21,18 +24,34 @@ import datetime as dt
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from mosaic_data.cli_args import parse_image_size, parse_int_list  # noqa: E402
+from mosaic_data.cli_args import (  # noqa: E402
+    OneLineErrorParser,
+    episode_count,
+    non_negative_int,
+    parse_image_size,
+    parse_int_list,
+    positive_int,
+)
+
+
+class _Stopped(Exception):
+    """The evaluation stopped part-way; ``message`` says why and where the finished episodes went."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .agents import BASELINES
-    from .rollouts import EVAL_BASE_SEED
+    from .options import BASELINES, EVAL_BASE_SEED  # no torch, LeRobot or simulator for --help
 
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="mosaic-eval",
         description="One-shot evaluation by simulated rollouts: success per variation and per task.",
     )
@@ -48,13 +67,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--task", required=True, help="task name (see `mosaic-data tasks`) or 'all'")
     parser.add_argument("--variations", type=parse_int_list, default=None, help="e.g. 0,1 (one task only; default all)")
-    parser.add_argument("--episodes-per-variation", type=int, default=10, help="episodes per variation (default 10)")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="rollout processes (default: all cores)")
+    parser.add_argument("--episodes-per-variation", type=episode_count, default=10, help="episodes per variation (default 10)")
+    parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="rollout processes (default: all cores)")
     parser.add_argument(
-        "--max-steps", type=int, default=None, metavar="N",
+        "--max-steps", type=positive_int, default=None, metavar="N",
         help="cap every episode at N steps (smoke tests; default: the task's horizon)",
     )
-    parser.add_argument("--seed", type=int, default=EVAL_BASE_SEED, help=f"base seed of the instances (default {EVAL_BASE_SEED})")
+    parser.add_argument("--seed", type=non_negative_int, default=EVAL_BASE_SEED, help=f"base seed of the instances (default {EVAL_BASE_SEED})")
     parser.add_argument(
         "--demo-dataset", default=None, metavar="DATASET",
         help="draw demonstrations from this demonstrator dataset (folder or repo id under $HF_LEROBOT_HOME) "
@@ -62,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--rerun", type=Path, default=None, metavar="OUT.rrd", help="save a rerun recording")
     parser.add_argument(
-        "--rerun-episodes", type=int, default=1, metavar="K",
+        "--rerun-episodes", type=positive_int, default=1, metavar="K",
         help="episodes recorded per variation and agent with --rerun (default 1)",
     )
     parser.add_argument("--attention-layer", type=int, default=-1, help="attention layer drawn in the recording (default: last)")
@@ -79,15 +98,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    from .agents import EvaluationError
+    from .options import EvaluationError
 
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exit_request:  # a bad argument (printed, one line) or --help: a status, as for every error
+        return exit_request.code if isinstance(exit_request.code, int) else 0
     try:
         return run(args)
     except EvaluationError as error:
         print(f"mosaic-eval: error: {error}", file=sys.stderr)
         return 2
+    except _Stopped as stopped:
+        print(f"mosaic-eval: {stopped.message}", file=sys.stderr)
+        return stopped.code
     except KeyboardInterrupt:
         print("mosaic-eval: interrupted", file=sys.stderr)
         return 130
@@ -96,47 +120,62 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from .confusion import write_heat_maps
+    from .options import EvaluationError
     from .plan import EvaluationPlan
     from .recording import EvaluationRecording
-    from .report import print_table, summarize, timing, write_reports
-    from .runner import run_episodes
+    from .report import check_output_paths, print_table, report_paths, summarize, timing, write_reports
+    from .runner import WorkerDied, in_plan_order, run_episodes
+
+    output = args.output or Path("outputs/eval") / f"{dt.datetime.now():%Y-%m-%d/%H-%M-%S}_{args.task}" / "results.json"
+    json_path, markdown_path = report_paths(output)
+    if markdown_path == json_path:
+        raise EvaluationError(f"--output {output} names the Markdown report's file: name the JSON one, e.g. results.json")
+    outputs = {"--output": json_path, "--output's Markdown report": markdown_path}
+    check_output_paths(outputs | ({"--rerun": args.rerun} if args.rerun else {}))  # before any work
 
     plan = EvaluationPlan.from_args(args)
-    output = args.output or Path("outputs/eval") / f"{dt.datetime.now():%Y-%m-%d/%H-%M-%S}_{args.task}" / "results.json"
     recording = EvaluationRecording(args.rerun, plan.n_demo_frames, args.attention_layer) if args.rerun else None
     progress = tqdm(total=len(plan.episodes), desc="episodes", unit="ep", disable=args.quiet, dynamic_ncols=True)
-    successes = 0
+    finished = []  # every result as it arrives: what an evaluation that stops early still writes
 
     def on_result(result) -> None:
-        nonlocal successes
-        successes += result.success
+        finished.append(result)
         progress.update(1)
-        progress.set_postfix(success=f"{successes}/{progress.n}")
+        progress.set_postfix(success=f"{sum(r.success for r in finished)}/{progress.n}")
         if recording is not None:
             recording.log_episode(result)
 
+    workers = min(args.workers, len(plan.episodes))
     start = time.perf_counter()
+
+    def report_of(results: list) -> dict:
+        return {
+            "settings": plan.settings(),
+            "tables": summarize(results, plan.groups),
+            "timing": timing(results, time.perf_counter() - start, workers),
+            "episodes": [result.summary() for result in results],
+        }
+
     try:
         results = run_episodes(plan.episodes, plan.agents, plan.demo_source, args.workers, on_result, args.max_steps)
+    except (KeyboardInterrupt, Exception) as error:
+        kept = _keep_partial(in_plan_order(finished, plan.episodes), len(plan.episodes), error, json_path, report_of)
+        if isinstance(error, KeyboardInterrupt):
+            raise _Stopped(130, f"interrupted; {kept}") from None
+        if isinstance(error, WorkerDied):
+            raise _Stopped(1, f"error: {error}; {kept}; run it again, with fewer --workers if memory is short") from None
+        if isinstance(error, EvaluationError):
+            raise _Stopped(2, f"error: {error}; {kept}") from None
+        print(f"mosaic-eval: {kept}", file=sys.stderr)
+        raise
     finally:
         progress.close()
         if recording is not None:
             recording.close()
-    wall_s = time.perf_counter() - start
-    tables = summarize(results, plan.groups)
-    report = {
-        "settings": plan.settings(),
-        "tables": tables,
-        "timing": timing(results, wall_s, min(args.workers, len(plan.episodes))),
-        "episodes": [result.summary() for result in results],
-    }
-    json_path, markdown_path = write_reports(output, report)
-    try:
-        heat_maps = write_heat_maps(json_path.parent, tables)
-    except ImportError:  # the results are written: a missing plotting library must not lose them
-        heat_maps = []
-        print("mosaic-eval: no confusion heat maps: matplotlib is not installed (pip install matplotlib)", file=sys.stderr)
+    report = report_of(results)
+    tables = report["tables"]
+    write_reports(json_path, report)
+    heat_maps = _write_heat_maps(json_path.parent, tables)
     print(print_table(tables))
     figures = report["timing"]
     print(
@@ -147,6 +186,35 @@ def run(args: argparse.Namespace) -> int:
     maps = "".join(f", {path.name}" for path in heat_maps[:3]) + (f" and {len(heat_maps) - 3} more" if len(heat_maps) > 3 else "")
     print(f"wrote {json_path}, {markdown_path}{maps}" + (f", rerun recording {args.rerun}" if args.rerun else ""))
     return 0
+
+
+def _keep_partial(finished: list, planned: int, error: BaseException, json_path: Path, report_of: Callable) -> str:
+    """Write the episodes that finished before ``error`` as a partial report; returns what was done, for the message."""
+    from .report import write_reports
+
+    if not finished:
+        return "no episode had finished, so no results were written"
+    reason = (str(error).splitlines() or [type(error).__name__])[0] if not isinstance(error, KeyboardInterrupt) else "interrupted"
+    report = report_of(finished) | {"partial": {"finished": len(finished), "planned": planned, "reason": reason}}
+    try:
+        write_reports(json_path, report)
+    except OSError as write_error:
+        return f"the {len(finished)} finished episodes could not be written to {json_path} ({write_error})"
+    return f"wrote the {len(finished)} of {planned} episodes that finished to {json_path} (partial results)"
+
+
+def _write_heat_maps(folder: Path, tables: dict) -> list[Path]:
+    """The heat maps, after the results are written: a missing plotting library or an unwritable image file must
+    not lose them."""
+    from .confusion import write_heat_maps
+
+    try:
+        return write_heat_maps(folder, tables)
+    except ImportError:
+        print("mosaic-eval: no confusion heat maps: matplotlib is not installed (pip install matplotlib)", file=sys.stderr)
+    except OSError as error:
+        print(f"mosaic-eval: no confusion heat maps: {error}", file=sys.stderr)
+    return []
 
 
 if __name__ == "__main__":

@@ -64,13 +64,16 @@ class DatasetDemoSource:
                 "frames: collect the demonstrations at the policy's image size"
             )
         episodes = self.dataset.meta.episodes
-        self._episodes_of: dict[str, list[tuple[int, int]]] = {}
+        self._episodes_of: dict[str, list[tuple[int, int, int]]] = {}  # description -> (episode, first frame, length)
+        self._records: dict[int, dict] = {}
         for index in range(len(episodes)):
             record = episodes[index]
             start = int(record["dataset_from_index"])
             length = int(record["dataset_to_index"]) - start
+            episode = int(record["episode_index"])
+            self._records[episode] = record
             for description in record["tasks"]:
-                self._episodes_of.setdefault(description, []).append((start, length))
+                self._episodes_of.setdefault(description, []).append((episode, start, length))
         self.root = root
 
     def check_covers(self, task: str, variations: Sequence[int]) -> None:
@@ -90,17 +93,83 @@ class DatasetDemoSource:
         if not candidates:
             raise EvaluationError(f"demo dataset {self.root} has no episode of {task} variation {variation}")
         choice = int(np.random.default_rng(seed).integers(len(candidates)))
-        start, length = candidates[choice]
+        episode, start, length = candidates[choice]
         indices = list(range(length)) if pick_frames is None else [int(i) for i in pick_frames(length)]
-        frames = [self._frame(start + i) for i in indices]
+        try:
+            frames = [self._frame(start + i) for i in indices]
+        except Exception as error:  # torchcodec and LeRobot raise several types for a damaged stream, none names the file
+            raise EvaluationError(
+                f"demo video {self.video_file(episode)} (episode {episode}) does not decode ({_first_line(error)}): "
+                f"{self._damaged_fix}"
+            ) from None
         return Demonstration(task, DEMONSTRATOR, variation, seed, length, indices, np.stack(frames))
 
     def _frame(self, index: int) -> np.ndarray:
         image = self.dataset[index][CAMERA_KEY]  # (3, H, W) float in [0, 1]
         return (image.permute(1, 2, 0).clamp(0, 1) * 255).round().byte().numpy()
 
+    def video_file(self, episode: int) -> Path:
+        """The video file that holds ``episode``'s camera frames (LeRobot packs several episodes into one file)."""
+        record = self._records[episode]
+        return self.root / self.dataset.meta.video_path.format(
+            video_key=CAMERA_KEY,
+            chunk_index=int(record[f"videos/{CAMERA_KEY}/chunk_index"]),
+            file_index=int(record[f"videos/{CAMERA_KEY}/file_index"]),
+        )
+
+    @property
+    def _damaged_fix(self) -> str:
+        return f"the demo dataset is damaged: check it with `mosaic-data validate {self.root}`, then collect it again"
+
+    def check_videos(self, tasks: dict[str, Sequence[int]]) -> None:
+        """Decode, before any rollout, every video holding an episode of ``tasks``' variations, and check that each
+        such episode decodes to as many frames as its metadata says: a damaged file fails naming itself, and a
+        lightly damaged one (a few frames lost, no decoder error) does not pass unnoticed."""
+        wanted: dict[Path, list[int]] = {}
+        for task, variations in tasks.items():
+            task_class = get_task_class(task)
+            for variation in variations:
+                for episode, _, _ in self._episodes_of.get(task_class.variations[variation].description, []):
+                    wanted.setdefault(self.video_file(episode), []).append(episode)
+        fps = self.dataset.meta.fps
+        for path, episodes in wanted.items():
+            frame_numbers, error = _decoded_frame_numbers(path, fps)
+            if error is not None:
+                raise EvaluationError(f"demo video {path} does not decode ({error}): {self._damaged_fix}")
+            for episode in episodes:
+                record = self._records[episode]
+                first = round(float(record[f"videos/{CAMERA_KEY}/from_timestamp"]) * fps)
+                end = round(float(record[f"videos/{CAMERA_KEY}/to_timestamp"]) * fps)
+                decoded = sum(first <= number < end for number in frame_numbers)
+                length = int(record["length"])
+                if decoded != length:
+                    raise EvaluationError(
+                        f"demo video {path} decodes to {decoded} frames of episode {episode}, its metadata says "
+                        f"{length}: {self._damaged_fix}"
+                    )
+
     def close(self) -> None:
         pass
+
+
+def _decoded_frame_numbers(path: Path, fps: int) -> tuple[list[int], str | None]:
+    """Frame numbers (timestamp x fps) of every frame ``path`` decodes to, and the error that stopped it, if any."""
+    import av
+
+    if not path.is_file():
+        return [], "the file is missing"
+    numbers: list[int] = []
+    try:
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                numbers.append(round(frame.time * fps) if frame.time is not None else len(numbers))
+    except Exception as error:  # av raises many error types for damaged streams
+        return numbers, f"{type(error).__name__}: {_first_line(error)} after {len(numbers)} frames"
+    return numbers, None
+
+
+def _first_line(error: BaseException) -> str:
+    return (str(error).strip().splitlines() or [type(error).__name__])[0]
 
 
 def build_demo_source(spec: DemoSourceSpec, image_hw: tuple[int, int]):

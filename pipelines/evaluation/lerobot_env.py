@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -30,6 +30,10 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline, ProcessorStepRegistry
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+if TYPE_CHECKING:
+    from mosaic_data.envs import MosaicGymEnv
+    from mosaic_data.tasks.base import MosaicTaskEnv
+
 DEMO_KEY = "demo"
 OBS_DEMO = f"observation.{DEMO_KEY}"
 DEMO_SEED_OFFSET = 50_000
@@ -38,17 +42,13 @@ DEMO_SEED_OFFSET = 50_000
 class DemoConditionedEnv(gym.Wrapper):
     """A MOSAIC gym env whose observations carry a demonstration of its variation, made anew at every reset."""
 
-    def __init__(self, env, demonstrator: str = "sawyer", demo_frames: int = 4) -> None:
+    def __init__(self, env: gym.Env, demonstrator: str = "sawyer", demo_frames: int = 4) -> None:
         super().__init__(env)
-        from mosaic_data.tasks import make_task_env
-
         inner = env.unwrapped
+        self.demonstrator = demonstrator
         self.demo_frames = demo_frames
-        self._demo_env = make_task_env(
-            inner.task, inner.variation, demonstrator,
-            image_height=inner.task_env.image_height, image_width=inner.task_env.image_width,
-        )
-        height, width = inner.task_env.image_height, inner.task_env.image_width
+        self._demo_env: MosaicTaskEnv | None = None  # the demonstrator's scene, built at the first reset
+        height, width = inner.image_height, inner.image_width
         self.observation_space = spaces.Dict(
             {**env.observation_space.spaces, DEMO_KEY: spaces.Box(0, 255, (demo_frames, height, width, 3), np.uint8)}
         )
@@ -60,13 +60,28 @@ class DemoConditionedEnv(gym.Wrapper):
         from mosaic_policy.paired_sampling import demo_frame_indices
 
         observation, info = self.env.reset(seed=seed, options=options)
-        instance_seed = self.env.unwrapped.task_env.instance_seed
+        inner = self.env.unwrapped
+        demo_env = self._demonstrator_scene(inner)
+        if demo_env.variation_index != inner.variation:  # reset(options={"variation": k}) switched the agent's
+            demo_env.set_variation(inner.variation)
         demo = record_demonstration(
-            self._demo_env, instance_seed + DEMO_SEED_OFFSET, lambda length: demo_frame_indices(length, self.demo_frames)
+            demo_env, inner.task_env.instance_seed + DEMO_SEED_OFFSET,
+            lambda length: demo_frame_indices(length, self.demo_frames),
         )
         self._demo, self.demo_seed = demo.frames, demo.seed
         info = {**info, "demo_seed": demo.seed}
         return self._with_demo(observation), info
+
+    def _demonstrator_scene(self, inner: MosaicGymEnv) -> MosaicTaskEnv:
+        """The demonstrator's scene, built on first use like the agent's (no GL context before a worker forks)."""
+        if self._demo_env is None:
+            from mosaic_data.tasks import make_task_env
+
+            self._demo_env = make_task_env(
+                inner.task, inner.variation, self.demonstrator,
+                image_height=inner.image_height, image_width=inner.image_width,
+            )
+        return self._demo_env
 
     def step(self, action):
         observation, reward, terminated, truncated, info = self.env.step(action)
@@ -76,7 +91,9 @@ class DemoConditionedEnv(gym.Wrapper):
         return {**observation, DEMO_KEY: self._demo}
 
     def close(self) -> None:
-        self._demo_env.close()
+        if self._demo_env is not None:
+            self._demo_env.close()
+            self._demo_env = None
         super().close()
 
 
@@ -84,12 +101,14 @@ def make_demo_conditioned_env(
     task: str, variation: int, robot: str, demonstrator: str, height: int, width: int, demo_frames: int,
     episode_length: int | None,
 ) -> DemoConditionedEnv:
-    """One sub-environment of a vector env (a module-level function, so that it pickles for async envs)."""
+    """One sub-environment of a vector env (a module-level function, so that it pickles for async envs); its
+    scenes are built at the first reset, in the process that runs it."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     from mosaic_data.envs import MosaicGymEnv
 
     env = MosaicGymEnv(task, variation, robot, image_height=height, image_width=width, horizon=episode_length)
-    return DemoConditionedEnv(env, demonstrator, demo_frames)
+    # gymnasium's TimeLimit truncates the episode (and holds the ``_max_episode_steps`` LeRobot's loop reads).
+    return DemoConditionedEnv(gym.wrappers.TimeLimit(env, max_episode_steps=env.horizon), demonstrator, demo_frames)
 
 
 @dataclass

@@ -20,6 +20,7 @@ from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
 from .agents import (
     AgentSpec,
     EvaluationError,
+    check_checkpoint_files,
     checkpoint_image_hw,
     policy_class,
     read_config,
@@ -28,6 +29,9 @@ from .agents import (
 )
 from .demo_sources import DatasetDemoSource, DemoSourceSpec
 from .rollouts import MAX_EPISODES_PER_VARIATION, EpisodeSpec, episode_seeds
+
+DATASET_WHERE_HINT = "under HF_LEROBOT_HOME (set that variable to the folder that holds the datasets)"
+"""How mosaic-eval says where repo ids are looked up: it has no --output-dir flag, LeRobot's home decides."""
 
 
 @dataclass
@@ -67,6 +71,7 @@ class EvaluationPlan:
             config = read_config(checkpoint)
             image_hw = checkpoint_image_hw(checkpoint, config)
             with_demo = takes_demo(policy_class(checkpoint, config["type"]))
+            check_checkpoint_files(checkpoint)  # after the fit checks: those need only config.json
             n_demo_frames = config.get("n_demo_frames", n_demo_frames) if with_demo else n_demo_frames
             spec = AgentSpec("policy", str(path), str(checkpoint), image_hw, record, takes_demo=with_demo)
             groups.setdefault(config["type"], {})[len(agents)] = str(path)
@@ -81,13 +86,16 @@ class EvaluationPlan:
             from mosaic_data.collection.schema import resolve_dataset
 
             try:
-                root = resolve_dataset(args.demo_dataset)
+                root = resolve_dataset(args.demo_dataset, where_hint=DATASET_WHERE_HINT)
             except ValueError as error:
                 raise EvaluationError(str(error)) from None
+            source = None
             for image_hw in {agent.image_hw for agent in agents if agent.needs_demo or record}:
                 source = DatasetDemoSource(root, image_hw)
                 for task, variations in tasks.items():
                     source.check_covers(task, variations)
+            if source is not None:
+                source.check_videos(tasks)
             demo_source = DemoSourceSpec(dataset=str(root))
 
         if not any(agent.needs_demo for agent in agents):

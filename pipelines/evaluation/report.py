@@ -10,6 +10,8 @@ confusion matrix (which variation the agent did, :mod:`.confusion`).
 
 from __future__ import annotations
 
+import os
+import tempfile
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +22,7 @@ import numpy as np
 from mosaic_data.atomic_files import write_bytes_atomically
 from mosaic_data.collection.metadata import write_json_atomically
 
+from .options import EvaluationError
 from .confusion import confusion_markdown, confusion_matrix, wrong_variation_text
 from .rollouts import EpisodeResult
 
@@ -97,22 +100,36 @@ def timing(results: list[EpisodeResult], wall_s: float, workers: int) -> dict[st
     }
 
 
-def markdown(tables: dict[str, Any], settings: dict[str, Any]) -> str:
+def _rows(tables: dict[str, Any], level: str) -> dict[tuple, dict[str, dict[str, Any] | None]]:
+    """Rows of one level ("per_task" or "per_variation") in first-seen order, each agent's cell or None: agents of
+    a partial evaluation may have finished different episodes."""
+    rows: dict[tuple, dict[str, dict[str, Any] | None]] = {}
+    for agent, table in tables.items():
+        for cell in table[level]:
+            key = (cell["task"], cell.get("variation"))
+            rows.setdefault(key, dict.fromkeys(tables))[agent] = cell
+    return rows
+
+
+def markdown(tables: dict[str, Any], settings: dict[str, Any], partial: dict[str, Any] | None = None) -> str:
     """One table per task level: rows = variations (then tasks), columns = agents, cells = success %."""
     agents = list(tables)
     header = "| | " + " | ".join(agents) + " |\n|---|" + "---|" * len(agents) + "\n"
     lines = [f"# mosaic-eval: one-shot success (%), mean +- std ({settings['episodes_per_variation']} episodes per variation)\n"]
-    first = tables[agents[0]]
+    if partial is not None:
+        lines.append(
+            f"\n**Partial results: {partial['finished']} of {partial['planned']} episodes finished** "
+            f"({partial['reason']}).\n\n"
+        )
     lines.append("## Per task\n\n" + header)
-    for row_index, row in enumerate(first["per_task"]):
-        cells = [tables[a]["per_task"][row_index] for a in agents]
-        lines.append(f"| {row['task']} | " + " | ".join(_cell_text(c) for c in cells) + " |\n")
+    for (task, _), cells in _rows(tables, "per_task").items():
+        lines.append(f"| {task} | " + " | ".join(_cell_text(cells[a]) for a in agents) + " |\n")
     overall = [tables[a]["overall"] for a in agents]
     lines.append("| **all** | " + " | ".join(_cell_text(c) for c in overall) + " |\n")
     lines.append("\n## Per variation\n\n" + header)
-    for row_index, row in enumerate(first["per_variation"]):
-        cells = [tables[a]["per_variation"][row_index] for a in agents]
-        lines.append(f"| {row['task']} {row['variation']}: {row['description']} | " + " | ".join(_cell_text(c) for c in cells) + " |\n")
+    for (task, variation), cells in _rows(tables, "per_variation").items():
+        description = next(cell["description"] for cell in cells.values() if cell is not None)
+        lines.append(f"| {task} {variation}: {description} | " + " | ".join(_cell_text(cells[a]) for a in agents) + " |\n")
     lines.append(
         "\n+- is the standard deviation over checkpoints when an agent has several, else over episodes. "
         f"Seeds: base {settings['seed']}; demonstrations: {settings['demo_source']}.\n"
@@ -133,26 +150,66 @@ def print_table(tables: dict[str, Any]) -> str:
     """The per-task (and, for one task, per-variation) table as plain text for the terminal, with the share of
     episodes per task in which the agent did another variation than the one demonstrated."""
     agents = list(tables)
-    first = tables[agents[0]]
+    per_task = _rows(tables, "per_task")
     rows = [("", *agents)]
-    if len(first["per_task"]) == 1:
-        for index, row in enumerate(first["per_variation"]):
-            rows.append((f"{row['task']} {row['variation']}", *(_cell_text(tables[a]["per_variation"][index]) for a in agents)))
-    for index, row in enumerate(first["per_task"]):
-        rows.append((f"{row['task']} (all)", *(_cell_text(tables[a]["per_task"][index]) for a in agents)))
-    for index, row in enumerate(first["per_task"]):
-        rows.append((f"{row['task']} wrong variation", *(wrong_variation_text(tables[a]["per_task"][index]) for a in agents)))
-    if len(first["per_task"]) > 1:
+    if len(per_task) == 1:
+        for (task, variation), cells in _rows(tables, "per_variation").items():
+            rows.append((f"{task} {variation}", *(_cell_text(cells[a]) for a in agents)))
+    for (task, _), cells in per_task.items():
+        rows.append((f"{task} (all)", *(_cell_text(cells[a]) for a in agents)))
+    for (task, _), cells in per_task.items():
+        rows.append((f"{task} wrong variation", *(wrong_variation_text(cells[a]) if cells[a] else "-" for a in agents)))
+    if len(per_task) > 1:
         rows.append(("all tasks", *(_cell_text(tables[a]["overall"]) for a in agents)))
     widths = [max(len(str(row[i])) for row in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(str(cell).ljust(width) for cell, width in zip(row, widths)) for row in rows)
 
 
-def write_reports(path: Path, report: dict[str, Any]) -> tuple[Path, Path]:
-    """``path`` (JSON) and the same name with ``.md`` (Markdown), written atomically."""
+def report_paths(path: Path) -> tuple[Path, Path]:
+    """The JSON report and the Markdown one beside it."""
     path = Path(path)
-    write_json_atomically(path, report)
-    markdown_path = path.with_suffix(".md")
-    write_bytes_atomically(markdown_path, markdown(report["tables"], report["settings"]).encode())
-    return path, markdown_path
+    return path, path.with_suffix(".md")
+
+
+def write_reports(path: Path, report: dict[str, Any]) -> tuple[Path, Path]:
+    """``path`` (JSON) and the same name with ``.md`` (Markdown), written atomically; a partial evaluation's
+    report carries ``report["partial"]`` and says so in both."""
+    json_path, markdown_path = report_paths(path)
+    write_json_atomically(json_path, report)
+    text = markdown(report["tables"], report["settings"], report.get("partial"))
+    write_bytes_atomically(markdown_path, text.encode())
+    return json_path, markdown_path
+
+
+def check_output_paths(paths: dict[str, Path]) -> None:
+    """Refuse, before any rollout, output paths that could not be written after it (``flag -> path``): a folder
+    where a file goes, a path under a file, a folder that cannot be written, two outputs on one file."""
+    seen: dict[Path, str] = {}
+    for flag, path in paths.items():
+        resolved = Path(os.path.abspath(path))
+        if resolved in seen:
+            raise EvaluationError(f"{flag} {path} is also the {seen[resolved]}: give the outputs different names")
+        seen[resolved] = flag
+        _check_writable(Path(path), flag)
+
+
+def _check_writable(path: Path, flag: str) -> None:
+    if path.is_dir():
+        example = {"--output": "results.json", "--rerun": "eval.rrd"}.get(flag)
+        fix = f"name a file in it, e.g. {path / example}" if example else "choose another --output"
+        raise EvaluationError(f"{flag} {path} is a folder, where a file must go: {fix}")
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise EvaluationError(f"{flag} {path} lies under {ancestor}, which is a file, not a folder: choose another path")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise EvaluationError(f"{flag} {path} exists and is read-only: choose another path or make it writable")
+    try:  # a real file, not os.access: root passes every permission check, a read-only file system does not
+        with tempfile.NamedTemporaryFile(dir=ancestor, prefix=".mosaic-eval-probe-"):
+            pass
+    except OSError as error:
+        raise EvaluationError(
+            f"{flag} {path} cannot be written: {ancestor} is not a writable folder ({error.strerror}): choose another path"
+        ) from None
 

@@ -14,19 +14,23 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from mosaic_data.envs import MosaicGymEnv
 from mosaic_data.tasks import get_task_class
-from mosaic_data.tasks.base import MosaicTaskEnv
 
 from .agents import Agent, AgentSpec, build_agent
 from .demo_sources import DemoSourceSpec, build_demo_source
 from .env_cache import EnvCache
+from .options import EVAL_BASE_SEED
 
-EVAL_BASE_SEED = 1_000_000_000
+if TYPE_CHECKING:
+    from mosaic_data.tasks.base import MosaicTaskEnv
+
+
 SEED_STRIDE_VARIATION = 100_000
 DEMO_SEED_OFFSET = 50_000
 DEMO_SEED_STRIDE = 10

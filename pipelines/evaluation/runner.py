@@ -5,12 +5,22 @@ environments and demo sources; episodes are handed out one at a time and come ba
 sorted, so the result list is the same whatever the worker count. Every worker runs torch and the software
 renderer on one thread: parallelism comes from the processes, and a fixed thread count keeps the floating-point
 results identical between a run with 1 worker and one with 4.
+
+The workers are plain processes watched by the parent (not a ``multiprocessing.Pool``, which silently replaces
+a worker killed by the out-of-memory killer and then waits forever for the episode it held): a worker that
+dies stops the evaluation with :class:`WorkerDied`, and the episodes that finished before stay with the caller
+(``on_result`` has seen each). A worker dies with its parent, so a killed ``mosaic-eval`` leaves no orphans.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
+import sys
+import traceback
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from mosaic_data.process_env import scoped_environment
 
@@ -19,20 +29,12 @@ from .demo_sources import DemoSourceSpec
 from .rollouts import EpisodeResult, EpisodeSpec, RolloutWorker
 
 THREAD_VARIABLES = ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-_worker: RolloutWorker | None = None
-
-
-def _init_worker(agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, max_steps: int | None) -> None:
-    global _worker
-    import torch
-
-    torch.set_num_threads(1)
-    _worker = RolloutWorker(agent_specs, demo_spec, max_steps)
+POLL_S = 0.5
+"""How often the parent looks for dead workers while it waits for results."""
 
 
-def _run_episode(spec: EpisodeSpec) -> EpisodeResult:
-    return _worker.run(spec)
+class WorkerDied(RuntimeError):
+    """A rollout worker process ended without reporting (killed, e.g. by the out-of-memory killer, or crashed)."""
 
 
 def run_episodes(
@@ -43,7 +45,8 @@ def run_episodes(
     on_result: Callable[[EpisodeResult], None] | None = None,
     max_steps: int | None = None,
 ) -> list[EpisodeResult]:
-    """Run every episode of ``specs``; ``on_result`` sees each result as it arrives (progress, recording).
+    """Run every episode of ``specs``; ``on_result`` sees each result as it arrives (progress, recording, and
+    the finished episodes a caller keeps if the evaluation stops early).
 
     ``max_steps`` caps every task's horizon (smoke tests); None evaluates up to the horizon."""
     results = []
@@ -52,6 +55,11 @@ def run_episodes(
             on_result(result)
         result.recording = None  # logged by on_result; do not keep frames of the whole evaluation in memory
         results.append(result)
+    return in_plan_order(results, specs)
+
+
+def in_plan_order(results: list[EpisodeResult], specs: list[EpisodeSpec]) -> list[EpisodeResult]:
+    """``results`` sorted as their episodes are in ``specs``: the same list whatever the worker count."""
     order = {(s.agent_index, s.task, s.variation, s.episode): position for position, s in enumerate(specs)}
     return sorted(results, key=lambda r: order[(r.agent_index, r.task, r.variation, r.episode)])
 
@@ -59,31 +67,169 @@ def run_episodes(
 def _results(
     specs: list[EpisodeSpec], agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, workers: int, max_steps: int | None
 ) -> Iterator[EpisodeResult]:
-    if workers <= 1:
-        import torch
+    if workers <= 1 or len(specs) <= 1:
+        yield from _in_process(specs, agent_specs, demo_spec, max_steps)
+    else:
+        yield from _on_workers(specs, agent_specs, demo_spec, min(workers, len(specs)), max_steps)
 
-        threads = torch.get_num_threads()
-        with _single_threaded():
-            torch.set_num_threads(1)
-            worker = RolloutWorker(agent_specs, demo_spec, max_steps)
-            try:
-                for spec in specs:
-                    yield worker.run(spec)
-            finally:
-                worker.close()
-                torch.set_num_threads(threads)
-        return
-    context = multiprocessing.get_context("spawn")
+
+def _in_process(
+    specs: list[EpisodeSpec], agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, max_steps: int | None
+) -> Iterator[EpisodeResult]:
+    import torch
+
+    threads = torch.get_num_threads()
     with _single_threaded():
-        pool = context.Pool(min(workers, len(specs)), initializer=_init_worker, initargs=(agent_specs, demo_spec, max_steps))
+        torch.set_num_threads(1)
+        worker = RolloutWorker(agent_specs, demo_spec, max_steps)
+        try:
+            for spec in specs:
+                yield worker.run(spec)
+        finally:
+            worker.close()
+            torch.set_num_threads(threads)
+
+
+def _on_workers(
+    specs: list[EpisodeSpec], agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, workers: int, max_steps: int | None
+) -> Iterator[EpisodeResult]:
+    """Episodes from a shared queue; each worker reports on its own pipe, so a worker killed in the middle of a
+    message leaves the parent an end-of-file on that pipe, never a read that waits forever."""
+    context = multiprocessing.get_context("spawn")
+    tasks = context.Queue()
+    for spec in specs:
+        tasks.put(spec)
+    for _ in range(workers):
+        tasks.put(None)
+    processes, readers = [], []
     try:
-        yield from pool.imap_unordered(_run_episode, specs)
-        pool.close()
+        with _single_threaded():
+            for index in range(workers):
+                reader, writer = context.Pipe(duplex=False)
+                process = context.Process(
+                    target=_worker_main, args=(os.getpid(), agent_specs, demo_spec, max_steps, tasks, writer),
+                    name=f"mosaic-eval-{index}",
+                )
+                process.start()
+                writer.close()  # the worker holds the only write end: its death reads as end-of-file here
+                processes.append(process)
+                readers.append(reader)
+        yield from _collect(processes, readers, len(specs))
     finally:
-        pool.terminate()
-        pool.join()
+        for process in processes:
+            if process.is_alive():
+                process.terminate()
+        for process in processes:
+            process.join(timeout=30)
+        for reader in readers:
+            reader.close()
+        tasks.cancel_join_thread()
 
 
-def _single_threaded():
+def _collect(processes: list, readers: list, total: int) -> Iterator[EpisodeResult]:
+    """Yield ``total`` results as the workers send them; raise as soon as a worker fails or dies."""
+    from multiprocessing.connection import wait
+
+    running: dict[int, EpisodeSpec] = {}  # worker index -> the episode it said it started
+    open_readers = dict(enumerate(readers))
+    remaining = total
+    while remaining:
+        ready = wait(list(open_readers.values()), timeout=POLL_S)
+        for index, reader in list(open_readers.items()):
+            if reader not in ready:
+                continue
+            try:
+                kind, payload = reader.recv()
+            except (EOFError, OSError):  # the worker is gone (a message cut short reads as EOF too)
+                del open_readers[index]
+                processes[index].join(timeout=5)
+                if remaining and processes[index].exitcode != 0:
+                    raise WorkerDied(_death(processes[index], running.get(index))) from None
+                continue
+            if kind == "start":
+                running[index] = payload
+            elif kind == "result":
+                running.pop(index, None)
+                remaining -= 1
+                yield payload
+            elif kind == "error":
+                raise _worker_error(payload)
+        if remaining and not open_readers:
+            raise WorkerDied(f"every evaluation worker ended with {remaining} episode(s) unreported")
+
+
+def _death(process, spec: EpisodeSpec | None) -> str:
+    during = "" if spec is None else f" during {spec.task} variation {spec.variation} episode {spec.episode}"
+    return f"evaluation worker {process.name} died ({_how(process.exitcode)}){during}"
+
+
+def _how(exitcode: int | None) -> str:
+    if exitcode is None:
+        return "it closed its pipe but did not exit"
+    if exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        hint = ", e.g. by the out-of-memory killer" if -exitcode == signal.SIGKILL else ""
+        return f"killed by {name}{hint}"
+    return f"exit code {exitcode}"
+
+
+def _worker_error(payload: tuple[BaseException | None, str]) -> BaseException:
+    """The worker's exception, re-raised here with the worker's traceback attached (or a RuntimeError with it when
+    the exception did not survive pickling)."""
+    error, remote_traceback = payload
+    if error is None:
+        return RuntimeError(f"an evaluation worker failed:\n{remote_traceback}")
+    error.add_note(f"in the evaluation worker:\n{remote_traceback}")
+    return error
+
+
+def _worker_main(
+    parent_pid: int, agent_specs: list[AgentSpec], demo_spec: DemoSourceSpec, max_steps: int | None,
+    tasks, results,
+) -> None:
+    """Entry point of a worker process: run episodes from ``tasks`` until a ``None``, report each on ``results``."""
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the process group: the parent stops the workers
+    import torch
+
+    torch.set_num_threads(1)
+    worker = None
+    try:
+        worker = RolloutWorker(agent_specs, demo_spec, max_steps)
+        while (spec := tasks.get()) is not None:
+            results.send(("start", spec))
+            results.send(("result", worker.run(spec)))
+    except Exception as error:  # report it rather than die silently; the parent decides
+        results.send(("error", (_picklable(error), traceback.format_exc())))
+    finally:
+        if worker is not None:
+            worker.close()
+        results.close()
+
+
+def _picklable(error: BaseException) -> BaseException | None:
+    import pickle
+
+    try:
+        pickle.loads(pickle.dumps(error))
+    except Exception:
+        return None
+    return error
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """The kernel kills this worker when the parent dies (Linux), so no orphan keeps rendering."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent_pid:  # the parent died before the line above took effect
+        os._exit(1)
+
+
+def _single_threaded() -> Any:
     """One thread per process for the renderer and BLAS (inherited by spawned workers), restored afterwards."""
     return scoped_environment(force={name: "1" for name in THREAD_VARIABLES}, default={"MUJOCO_GL": "egl"})

@@ -19,7 +19,7 @@ def _assert_one_line_error(capsys, *words):
     [
         (["--task", "no_such_task"], ["unknown task", "door"]),
         (["--task", "door", "--variations", "0,9"], ["variation 9", "0..3"]),
-        (["--task", "door", "--variations", "1,1"], ["twice"]),
+        (["--task", "door", "--variations", "1,1"], ["--variations", "1 repeated"]),
         (["--task", "door", "--episodes", "0"], ["--episodes"]),
         (["--task", "all", "--variations", "0"], ["--task all"]),
     ],

@@ -90,7 +90,7 @@ def test_task_all_merges_the_suite_and_a_rerun_leaves_every_dataset_alone(tmp_pa
 
     import mosaic_data.tasks
 
-    monkeypatch.setattr(mosaic_data.tasks, "TASKS", {name: mosaic_data.tasks.TASKS[name] for name in ("door", "press_button")})
+    monkeypatch.setattr(mosaic_data.tasks, "TASK_NAMES", ("door", "press_button"))  # the suite's table of names
     arguments = ["collect", "--task", "all", "--robot", "panda", "--episodes", "1", "--workers", "2",
                  "--output-dir", str(tmp_path), "--image-size", TEST_IMAGE_SIZE, "--quiet"]
     assert cli(*arguments) == 0

@@ -63,6 +63,7 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert "contrastive_loss" in result.stdout + result.stderr
+    assert "[robosuite" not in result.stdout + result.stderr  # training does not load the simulator
 
     from lerobot.policies.factory import make_pre_post_processors
     from mosaic_policy.modeling_mosaic import MosaicPolicy
@@ -75,6 +76,8 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     assert all(torch.equal(saved[k], state[k]) for k in saved)
     assert int(policy.ema_step) == 2  # update() ran after each optimizer step
     assert policy.config.ema_total_steps is None  # the schedule's length is each run's --steps, never saved
+    assert policy.config.demo_root is None  # no machine-local path in the policy's config.json
+    assert str(demo_root) not in (checkpoint / "config.json").read_text()
 
     # The saved processors normalise with the dataset stats and unnormalise the action.
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))

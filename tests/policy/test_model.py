@@ -160,10 +160,10 @@ def test_ablations_train(overrides):
 
 
 def test_loss_is_averaged_per_variation_then_per_task():
-    from mosaic_data.tasks import TASKS
+    from mosaic_data.tasks.spec import VARIATIONS
 
-    door = [v.description for v in TASKS["door"].variations]
-    drawer = [v.description for v in TASKS["drawer"].variations]
+    door = [v.description for v in VARIATIONS["door"]]
+    drawer = [v.description for v in VARIATIONS["drawer"]]
     policy = MosaicPolicy(small_config(contrastive="off", augment=False))
     batch = {"task": [door[0], door[0], door[1], drawer[0]]}
     weights = policy._sample_weights(batch, 4, "cpu")

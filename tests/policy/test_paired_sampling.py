@@ -103,3 +103,25 @@ def test_a_fraction_of_the_agent_episodes_restricts_the_demonstrator_to_the_same
             assert rank in (0, 1) and rank != ranks[episode]
     with pytest.raises(DemoDatasetError, match="outside"):
         PairedDemoSampler("mosaic/door_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent_meta, agent_episodes=[9], threads=0)
+
+
+@pytest.mark.parametrize("damage", ["overwritten", "short"])
+def test_a_damaged_demonstrator_video_names_its_file_in_training(tmp_path, damage):
+    """torchcodec says "Could not push packet to decoder" (or LeRobot a tolerance assertion for lost frames) with no
+    path: the training run must name the file and the fix."""
+    from video_damage import drop_last_frames, overwrite_middle
+
+    agent = write_dataset(tmp_path / "door_panda", "mosaic/door_panda", [0, 1])
+    demo = write_dataset(tmp_path / "door_sawyer", "mosaic/door_sawyer", [0, 1])
+    videos = sorted((demo / "videos").rglob("*.mp4"))
+    assert len(videos) == 1
+    overwrite_middle(videos[0]) if damage == "overwritten" else drop_last_frames(videos[0], 6)
+    agent_meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent)
+    sampler = PairedDemoSampler("mosaic/door_sawyer", demo, IMAGE_KEY, 4, agent_meta=agent_meta, threads=0, seed=0)
+    tasks = [t[0] for t in agent_meta.episodes["tasks"]]
+    with pytest.raises(DemoDatasetError) as caught:
+        for _ in range(20):  # every episode's last frame is drawn: the last episode's lie in the damaged part
+            sampler.sample(tasks, list(range(len(tasks))))
+    message = str(caught.value)
+    assert str(videos[0]) in message and f"mosaic-data validate {demo}" in message and "\n" not in message
+    sampler.close()

@@ -1,0 +1,129 @@
+"""`mosaic-data view` on the shared tiny collection: no display, the web viewer, --save paths, the pair blueprint."""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+
+import pytest
+
+
+def _view_command(door_output, *args: str) -> list[str]:
+    return [sys.executable, "-m", "mosaic_data.cli", "view", "mosaic/door_panda", "--output-dir", str(door_output), *args]
+
+
+def _without_display() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_view_without_a_display_stops_at_once_and_names_save_and_web(door_output):
+    # Before: rerun's viewer could not open a window and the command waited for it forever.
+    start = time.monotonic()
+    result = subprocess.run(
+        _view_command(door_output, "--pair"), env=_without_display(), capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2, result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("mosaic-data: error:")]
+    assert len(errors) == 1 and "no display" in errors[0] and "--save" in errors[0] and "--web" in errors[0]
+    assert time.monotonic() - start < 60
+
+
+def test_view_web_serves_rerun_web_viewer_until_interrupted(door_output):
+    web_port, grpc_port = _free_port(), _free_port()
+    process = subprocess.Popen(
+        _view_command(door_output, "--pair", "--web", "--web-port", str(web_port), "--grpc-port", str(grpc_port)),
+        env=_without_display(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
+    try:
+        deadline = time.monotonic() + 180
+        url = None
+        while url is None and time.monotonic() < deadline and process.poll() is None:
+            try:
+                line = lines.get(timeout=1)
+            except queue.Empty:
+                continue
+            url = next((word for word in line.split() if word.startswith("http://")), None)
+        assert url is not None, f"no URL printed (exit status {process.poll()})"
+        assert url.startswith(f"http://localhost:{web_port}/") and f"localhost%3A{grpc_port}" in url
+        with urllib.request.urlopen(url, timeout=30) as response:
+            assert response.status == 200 and b"rerun" in response.read().lower()
+        with socket.create_connection(("127.0.0.1", grpc_port), timeout=10):
+            pass  # the recording's gRPC server answers too
+        assert process.poll() is None, "it keeps serving"
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=60) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+@pytest.mark.parametrize(
+    "make_path, message",
+    [
+        (lambda tmp: tmp, "is a folder: give a file in it, e.g. --save {tmp}/door_panda_episode_1_pair.rrd"),
+        (lambda tmp: tmp / "pair.png", "--save must name a .rrd file"),
+        (lambda tmp: tmp / "notes.txt" / "pair.rrd", "notes.txt is a file, not a folder"),
+    ],
+    ids=["existing-folder", "wrong-suffix", "under-a-file"],
+)
+def test_view_save_refuses_bad_paths_in_one_line(door_output, tmp_path, capsys, cli, make_path, message):
+    (tmp_path / "notes.txt").write_text("not a folder")
+    path = make_path(tmp_path)
+    status = cli("view", "mosaic/door_panda", "--output-dir", str(door_output), "--episode", "1", "--pair", "--save", str(path))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1, err
+    assert message.format(tmp=tmp_path) in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"], "nothing written"
+
+
+def _text_views_and_documents(rrd):
+    """(origin of every text-document view in the blueprint, entity paths holding a text document)."""
+    from rerun.experimental import RrdReader
+
+    reader = RrdReader(rrd)
+    (blueprint,) = reader.blueprints()
+    views: dict[str, dict] = {}
+    for chunk in reader.stream(store=blueprint):
+        columns = chunk.to_record_batch().to_pydict()
+        for key in ("ViewBlueprint:class_identifier", "ViewBlueprint:space_origin", "ViewContents:query"):
+            if key in columns:
+                view = chunk.entity_path.removesuffix("/ViewContents")
+                views.setdefault(view, {})[key] = columns[key][-1][0]
+    text_origins = []
+    for fields in views.values():
+        if fields.get("ViewBlueprint:class_identifier") == "TextDocument":
+            assert fields.get("ViewContents:query", "$origin/**") == "$origin/**", "a view that shows its origin's subtree"
+            text_origins.append(fields["ViewBlueprint:space_origin"])
+    documents = sorted(
+        {name.split(":")[0] for name in reader.store().schema().column_names() if name.endswith("TextDocument:text")}
+    )
+    return text_origins, documents
+
+
+def test_pair_recording_gives_each_text_document_its_own_view(door_output, tmp_path, cli):
+    # Before: one "episode" view over /description held both robots' documents, and rerun showed
+    # "Can only show one text document at a time; was given 2" instead of either.
+    rrd = tmp_path / "pair.rrd"
+    assert cli("view", "mosaic/door_panda", "--output-dir", str(door_output), "--episode", "1", "--pair", "--save", str(rrd)) == 0
+    origins, documents = _text_views_and_documents(rrd)
+    assert documents == ["/description/panda", "/description/sawyer"], documents
+    for origin in origins:
+        shown = [d for d in documents if d == origin or d.startswith(origin.rstrip("/") + "/")]
+        assert len(shown) == 1, f"the text view at {origin} would get {shown}"
+    assert {d for d in documents if any(d == o or d.startswith(o.rstrip("/") + "/") for o in origins)} == set(documents)

@@ -1,0 +1,268 @@
+"""mosaic-eval under failure: dead workers, bad output paths, bad numbers, incomplete checkpoints, damaged demo
+videos, unknown demo datasets. Every case must end in one line that names the fix, before any rollout where the
+input is at fault, and never lose episodes that finished."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from video_damage import drop_last_frames, overwrite_middle
+
+from pipelines.evaluation.cli import main as mosaic_eval
+
+REPO = Path(__file__).resolve().parents[2]
+SMALL = ["--task", "door", "--variations", "0", "--episodes-per-variation", "1", "--max-steps", "5", "--workers", "1"]
+
+
+def _run(tmp_path: Path, *args: str, output: Path | None = None) -> tuple[int, Path]:
+    output = output or tmp_path / "results.json"
+    return mosaic_eval([*args, "--output", str(output), "--quiet"]), output
+
+
+def _one_line_error(capsys) -> str:
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("mosaic-eval: error:") and "\n" not in error, error
+    return error
+
+
+# ---------------------------------------------------------------------------------------------- 1. dead workers
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(child) for child in path.read_text().split()] if path.exists() else []
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _alive(pid: int) -> bool:
+    """Running, not a zombie waiting to be reaped."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def test_a_killed_worker_stops_the_evaluation_and_keeps_the_finished_episodes(tmp_path):
+    output = tmp_path / "results.json"
+    command = [
+        sys.executable, "-m", "pipelines.evaluation.cli", "--baseline", "expert", "--task", "door", "--variations", "0",
+        "--episodes-per-variation", "40", "--max-steps", "100", "--workers", "2", "--output", str(output),
+    ]
+    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    stderr = bytearray()
+
+    def read_stderr() -> None:
+        while chunk := process.stderr.read1(4096):
+            stderr.extend(chunk)
+
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 300
+        while not any(int(n) >= 1 for n in re.findall(rb"\| *(\d+)/40", bytes(stderr))):  # the progress bar
+            assert process.poll() is None, f"ended before any episode finished: {bytes(stderr)[-2000:]!r}"
+            assert time.monotonic() < deadline, "no episode finished within 300 s"
+            time.sleep(0.1)
+        workers = [pid for pid in _children(process.pid) if "spawn_main" in _cmdline(pid)]
+        assert len(workers) == 2, [_cmdline(pid) for pid in _children(process.pid)]
+        os.kill(workers[0], signal.SIGKILL)  # as the out-of-memory killer does
+        killed_at = time.monotonic()
+        code = process.wait(timeout=120)  # before the fix: waits forever for the lost episode
+        stopped_in = time.monotonic() - killed_at
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    reader.join(timeout=10)
+    lines = bytes(stderr).decode(errors="replace").replace("\r", "\n").strip().splitlines()
+    assert code == 1 and stopped_in < 60
+    assert "Traceback" not in "\n".join(lines)
+    last = lines[-1]
+    assert last.startswith("mosaic-eval: error: evaluation worker mosaic-eval-") and "died (killed by SIGKILL" in last
+    assert "out-of-memory" in last and "partial results" in last and str(output) in last
+    report = json.loads(output.read_text())
+    partial, episodes = report["partial"], report["episodes"]
+    assert partial["planned"] == 40 and 1 <= partial["finished"] == len(episodes) < 40
+    assert partial["reason"].startswith("evaluation worker")
+    assert report["tables"]["expert"]["overall"]["episodes"] == len(episodes)
+    assert "Partial results" in output.with_suffix(".md").read_text()
+    assert not any(_alive(pid) for pid in workers), "the other worker must be stopped too"
+
+
+def test_a_partial_report_with_an_agent_that_finished_nothing_still_renders(tmp_path):
+    """Agents of a stopped evaluation cover different episodes: the tables go by task and variation, not row index."""
+    from pipelines.evaluation.report import markdown, print_table, summarize
+    from pipelines.evaluation.rollouts import EpisodeResult
+
+    def result(variation: int, success: bool) -> EpisodeResult:
+        return EpisodeResult(0, "expert", "door", variation, f"door {variation}", 0, 1, 2, success, variation if success else None,
+                             5, 5, [0.0, 0.0, 0.0], 0.1, 0.01, 0.0)
+
+    tables = summarize([result(0, True), result(2, False)], {"expert": {0: "expert"}, "untrained": {1: "untrained"}})
+    settings = {"episodes_per_variation": 1, "seed": 0, "demo_source": "fresh"}
+    assert "| door 2: door 2 | 0.0 +- 0.0 | - |" in markdown(tables, settings)
+    assert "door wrong variation  0.0%" in print_table(tables)
+    assert "Partial results: 2 of 8" in markdown(tables, settings, {"finished": 2, "planned": 8, "reason": "a worker died"})
+
+
+# ---------------------------------------------------------------------------------------------- 2. output paths
+
+
+def _unwritable_folder(tmp_path: Path) -> Path:
+    """A folder this process cannot create files in (root passes permission bits: then a kernel folder)."""
+    folder = tmp_path / "read_only"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        tempfile.NamedTemporaryFile(dir=folder).close()
+    except OSError:
+        return folder
+    return Path("/sys")
+
+
+@pytest.mark.parametrize("case", ["a folder", "under a file", "unwritable", "markdown is a folder", "rerun under a file", "md"])
+def test_output_paths_are_checked_before_any_work(tmp_path, capsys, case):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    output, extra, flag = tmp_path / "results.json", [], "--output"
+    if case == "a folder":
+        output.mkdir()
+    elif case == "under a file":
+        output = blocker / "eval" / "results.json"
+    elif case == "unwritable":
+        output = _unwritable_folder(tmp_path) / "eval" / "results.json"
+    elif case == "markdown is a folder":
+        output.with_suffix(".md").mkdir()
+        flag = "Markdown report"
+    elif case == "rerun under a file":
+        extra, flag = ["--rerun", str(blocker / "eval.rrd")], "--rerun"
+    elif case == "md":
+        output = tmp_path / "results.md"
+    code, _ = _run(tmp_path, "--baseline", "expert", *SMALL, *extra, output=output)
+    error = _one_line_error(capsys)  # before the fix: the evaluation ran, then writing its results failed
+    assert code == 2 and flag in error
+    assert not [path for pattern in ("*.json", "*.md", "*.png") for path in tmp_path.rglob(pattern) if path.is_file()]
+
+
+# ---------------------------------------------------------------------------------------------- 3. numbers
+
+
+@pytest.mark.parametrize(
+    "flag, value",
+    [("--seed", "-5"), ("--episodes-per-variation", "0"), ("--workers", "0"), ("--rerun-episodes", "-1"), ("--max-steps", "0"),
+     ("--seed", "five")],
+)
+def test_a_bad_number_is_one_line_naming_the_flag(tmp_path, capsys, flag, value):
+    args = ["--baseline", "expert", "--task", "door", "--variations", "0", "--episodes-per-variation", "1", "--max-steps", "5"]
+    code, output = _run(tmp_path, *args, flag, value)
+    error = _one_line_error(capsys)
+    assert code == 2 and f"argument {flag}:" in error and value in error
+    assert not output.exists()
+
+
+# ---------------------------------------------------------------------------------------------- 4. checkpoints
+
+
+def _damage_safetensors_header(path: Path) -> None:
+    data = bytearray(path.read_bytes())
+    data[8:20] = b"#not json###"
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize(
+    "damage, file",
+    [
+        (lambda folder: (folder / "policy_preprocessor.json").unlink(), "policy_preprocessor.json"),
+        (lambda folder: (folder / "policy_postprocessor.json").unlink(), "policy_postprocessor.json"),
+        (lambda folder: os.truncate(folder / "model.safetensors", 1_000_000), "model.safetensors"),
+        (lambda folder: _damage_safetensors_header(folder / "model.safetensors"), "model.safetensors"),
+        (lambda folder: (folder / "policy_preprocessor_step_3_normalizer_processor.safetensors").unlink(),
+         "policy_preprocessor_step_3_normalizer_processor.safetensors"),
+        (lambda folder: (folder / "config.json").unlink(), "config.json"),
+    ],
+    ids=["no preprocessor", "no postprocessor", "truncated weights", "damaged header", "no normalizer state", "no config"],
+)
+def test_an_incomplete_checkpoint_is_refused_before_rollouts(tmp_path, capsys, tiny_checkpoint, damage, file):
+    checkpoint = tmp_path / "pretrained_model"
+    shutil.copytree(tiny_checkpoint, checkpoint)
+    damage(checkpoint)
+    code, output = _run(tmp_path, f"--policy.path={checkpoint}", *SMALL)
+    error = _one_line_error(capsys)
+    assert code == 2 and str(checkpoint / file) in error
+    assert "copy the whole pretrained_model folder" in error and "retrain" in error
+    assert not output.exists()
+
+
+# ---------------------------------------------------------------------------------------------- 5. demo videos
+
+
+def _demo_dataset(tmp_path: Path) -> tuple[Path, Path]:
+    from eval_helpers import write_demo_dataset
+
+    root = write_demo_dataset(tmp_path / "door_sawyer", "door", [0, 1])
+    (video,) = (root / "videos").rglob("*.mp4")
+    return root, video
+
+
+def test_a_damaged_demo_video_is_named_before_rollouts(tmp_path, capsys, tiny_checkpoint):
+    root, video = _demo_dataset(tmp_path)
+    overwrite_middle(video)
+    capsys.readouterr()  # what writing the dataset printed
+    code, output = _run(tmp_path, f"--policy.path={tiny_checkpoint}", *SMALL, "--demo-dataset", str(root))
+    error = _one_line_error(capsys)
+    assert code == 2 and f"demo video {video} does not decode" in error and f"mosaic-data validate {root}" in error
+    assert not output.exists()
+
+
+def test_a_demo_video_missing_frames_is_named_before_rollouts(tmp_path, capsys, tiny_checkpoint):
+    root, video = _demo_dataset(tmp_path)
+    drop_last_frames(video, 2)  # the last episode (door variation 1) loses 2 of its 10 frames
+    capsys.readouterr()  # what writing the dataset printed
+    code, output = _run(tmp_path, f"--policy.path={tiny_checkpoint}", *SMALL[:2], "--variations", "1", *SMALL[4:],
+                        "--demo-dataset", str(root))
+    error = _one_line_error(capsys)
+    assert code == 2 and f"demo video {video} decodes to 8 frames of episode 3, its metadata says 10" in error
+    assert "mosaic-data validate" in error and not output.exists()
+
+
+def test_a_video_that_fails_during_the_evaluation_is_named(tmp_path):
+    """Damage found by the decoder in a worker (after the up-front check) names the file too."""
+    from pipelines.evaluation.agents import EvaluationError
+    from pipelines.evaluation.demo_sources import DatasetDemoSource
+
+    root, video = _demo_dataset(tmp_path)
+    source = DatasetDemoSource(root, (48, 88))
+    overwrite_middle(video)
+    with pytest.raises(EvaluationError, match=re.escape(f"demo video {video} (episode ")) as caught:
+        for seed in range(8):  # either episode of either variation: some frames lie in the damaged part
+            for variation in (0, 1):
+                source.demonstration("door", variation, seed, None)
+    assert "mosaic-data validate" in str(caught.value)
+
+
+# ---------------------------------------------------------------------------------------------- 6. dataset names
+
+
+def test_an_unknown_demo_dataset_names_how_mosaic_eval_finds_datasets(tmp_path, capsys):
+    code, _ = _run(tmp_path, "--baseline", "untrained", *SMALL, "--demo-dataset", "mosaic/no_such_dataset")
+    error = _one_line_error(capsys)
+    assert code == 2 and "no LeRobot dataset at 'mosaic/no_such_dataset'" in error
+    assert "HF_LEROBOT_HOME" in error and "--output-dir" not in error
