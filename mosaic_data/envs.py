@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium import spaces
 
 from mosaic_data.tasks import TASK_NAMES as TASKS  # task keys only: registering must not load the simulator
-from mosaic_data.tasks import make_task_env
+from mosaic_data.tasks import CLASS_NAMES, make_task_env
 from mosaic_data.tasks.spec import ACTION_DIM, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM, get_task_spec, validate_robot
 
 if TYPE_CHECKING:
@@ -34,15 +34,7 @@ if TYPE_CHECKING:
 
     from mosaic_data.tasks.base import MosaicTaskEnv
 
-GYM_NAMES: dict[str, str] = {
-    "door": "Door",
-    "drawer": "Drawer",
-    "press_button": "PressButton",
-    "stack_block": "StackBlock",
-    "basketball": "Basketball",
-    "nut_assembly": "NutAssembly",
-    "pick_place": "PickPlace",
-}
+GYM_NAMES: dict[str, str] = CLASS_NAMES
 """Task key -> gymnasium environment name (``mosaic/<Name>-v0``)."""
 
 WORKSPACE_LOW = np.array([-0.6, -0.6, 0.75])

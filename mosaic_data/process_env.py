@@ -1,4 +1,4 @@
-"""Environment variables set for the worker processes a command spawns, and restored afterwards."""
+"""Worker processes a command spawns: the environment variables they inherit, and stopping them."""
 
 from __future__ import annotations
 
@@ -22,3 +22,13 @@ def scoped_environment(force: Mapping[str, str] = {}, default: Mapping[str, str]
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+
+
+def stop_processes(processes, timeout_s: float = 30) -> None:
+    """Terminate the workers still running (Ctrl-C, an error, a dead sibling) and reap every one, so no child
+    outlives the command that started it."""
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join(timeout=timeout_s)

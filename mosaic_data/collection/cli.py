@@ -96,6 +96,8 @@ def cmd_view(args: argparse.Namespace) -> int:
             "no display to open rerun's viewer on (DISPLAY and WAYLAND_DISPLAY are unset): add --save episode.rrd "
             "to write a file, or --web to serve rerun's web viewer on localhost"
         )
+    if args.web and args.web_port == args.grpc_port:
+        raise ValueError(f"--web-port and --grpc-port are both {args.web_port}: the two servers need two ports")
     web = WebPorts(args.web_port, args.grpc_port) if args.web else None
     message = view_episode(root, args.episode, pair=pair, pair_root=pair_root, save=args.save, web=web)
     print(message)
@@ -167,7 +169,7 @@ def add_collection_commands(sub) -> None:
 
     view = sub.add_parser("view", help="show an episode in rerun (camera, state, action, success)", formatter_class=defaults)
     view.add_argument("dataset", help="dataset folder or repo id")
-    view.add_argument("--episode", type=int, default=0, help="episode index")
+    view.add_argument("--episode", type=non_negative_int, default=0, help="episode index")
     view.add_argument("--pair", action="store_true", help="show a demonstrator (sawyer) episode of the same variation beside it")
     view.add_argument("--pair-with", default=None, help="the other robot's dataset for --pair; None means the sibling mosaic/<task>_<other robot>")
     out = view.add_mutually_exclusive_group()
@@ -176,8 +178,8 @@ def add_collection_commands(sub) -> None:
         "--web", action="store_true",
         help="serve rerun's web viewer on localhost instead (no display needed); prints its URL, serves until Ctrl-C",
     )
-    view.add_argument("--web-port", type=int, default=9090, help="HTTP port of the web viewer, with --web")
-    view.add_argument("--grpc-port", type=int, default=9876, help="port the web viewer reads the recording from, with --web")
+    view.add_argument("--web-port", type=positive_int, default=9090, help="HTTP port of the web viewer, with --web")
+    view.add_argument("--grpc-port", type=positive_int, default=9876, help="port the web viewer reads the recording from, with --web")
     view.add_argument("--output-dir", type=Path, default=None, help=where)
     view.set_defaults(func=cmd_view)
 

@@ -32,7 +32,7 @@ from mosaic_data.collection.schema import (
     schema_mismatch,
 )
 from mosaic_data.collection.worker import TEMPORARY_MARK, ShardResult, read_shard_records, worker_main
-from mosaic_data.process_env import scoped_environment
+from mosaic_data.process_env import scoped_environment, stop_processes
 from mosaic_data.tasks.spec import IMAGE_HEIGHT, IMAGE_WIDTH
 
 ALL_TASKS = "all"
@@ -378,11 +378,7 @@ def _run_workers(pending: list[ShardSpec], workers: int, on_episode, on_shard) -
             elif kind == "error":
                 raise CollectionError(payload)
     finally:
-        for process in processes:
-            if process.is_alive():
-                process.terminate()
-        for process in processes:
-            process.join(timeout=30)
+        stop_processes(processes)
         shard_queue.cancel_join_thread()
         event_queue.cancel_join_thread()
 

@@ -24,7 +24,7 @@ from mosaic_data.tasks.spec import (
 if TYPE_CHECKING:
     from mosaic_data.tasks.base import MosaicTaskEnv
 
-_CLASS_NAMES: dict[str, str] = {
+CLASS_NAMES: dict[str, str] = {
     "door": "Door",
     "drawer": "Drawer",
     "press_button": "PressButton",
@@ -33,14 +33,14 @@ _CLASS_NAMES: dict[str, str] = {
     "nut_assembly": "NutAssembly",
     "pick_place": "PickPlace",
 }
-"""Task key -> its environment class, defined in ``mosaic_data.tasks.<task key>``."""
+"""Task key -> its environment class, defined in ``mosaic_data.tasks.<task key>`` (also its gymnasium name)."""
 
 
 def get_task_class(task: str) -> type[MosaicTaskEnv]:
     """The robosuite environment class of ``task`` (imports the simulator)."""
-    if task not in _CLASS_NAMES:
+    if task not in CLASS_NAMES:
         raise ValueError(f"unknown task {task!r}: choose one of {', '.join(TASK_NAMES)}")
-    return getattr(importlib.import_module(f"mosaic_data.tasks.{task}"), _CLASS_NAMES[task])
+    return getattr(importlib.import_module(f"mosaic_data.tasks.{task}"), CLASS_NAMES[task])
 
 
 def __getattr__(name: str) -> Any:
@@ -53,7 +53,7 @@ def __getattr__(name: str) -> Any:
         from mosaic_data.tasks.base import MosaicTaskEnv
 
         return MosaicTaskEnv
-    for task, class_name in _CLASS_NAMES.items():
+    for task, class_name in CLASS_NAMES.items():
         if name == class_name:
             return get_task_class(task)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -22,7 +22,7 @@ import traceback
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from mosaic_data.process_env import scoped_environment
+from mosaic_data.process_env import scoped_environment, stop_processes
 
 from .agents import AgentSpec
 from .demo_sources import DemoSourceSpec
@@ -116,11 +116,7 @@ def _on_workers(
                 readers.append(reader)
         yield from _collect(processes, readers, len(specs))
     finally:
-        for process in processes:
-            if process.is_alive():
-                process.terminate()
-        for process in processes:
-            process.join(timeout=30)
+        stop_processes(processes)
         for reader in readers:
             reader.close()
         tasks.cancel_join_thread()

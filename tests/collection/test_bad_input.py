@@ -5,13 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
+from cli_errors import one_line_error
 
-
-def _assert_one_line_error(capsys, *words):
-    error = capsys.readouterr().err.strip()
-    assert error.startswith("mosaic-data: error:") and "\n" not in error, error
-    for word in words:
-        assert word in error, error
 
 
 @pytest.mark.parametrize(
@@ -27,7 +22,7 @@ def _assert_one_line_error(capsys, *words):
 def test_bad_options_write_nothing(tmp_path, cli, capsys, extra, words):
     output = tmp_path / "out"
     assert cli("collect", *extra, "--output-dir", str(output)) == 2
-    _assert_one_line_error(capsys, *words)
+    one_line_error(capsys, *words)
     assert not output.exists()
 
 
@@ -35,7 +30,7 @@ def test_unwritable_output_dir(tmp_path, cli, capsys):
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
     assert cli("collect", "--task", "door", "--output-dir", str(blocker / "datasets")) == 2
-    _assert_one_line_error(capsys, "not a writable folder")
+    one_line_error(capsys, "not a writable folder")
 
 
 def test_existing_dataset_of_another_schema_is_left_alone(tmp_path, cli, capsys):
@@ -45,10 +40,10 @@ def test_existing_dataset_of_another_schema_is_left_alone(tmp_path, cli, capsys)
     (root / "meta" / "info.json").write_text(json.dumps(info))
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
     assert cli("collect", "--task", "door", "--robot", "panda", "--output-dir", str(tmp_path)) == 2
-    _assert_one_line_error(capsys, "another schema", "--overwrite")
+    one_line_error(capsys, "another schema", "--overwrite")
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
 
 
 def test_bad_dataset_argument(tmp_path, cli, capsys):
     assert cli("validate", str(tmp_path / "nothing_here")) == 2
-    _assert_one_line_error(capsys, "no LeRobot dataset")
+    one_line_error(capsys, "no LeRobot dataset")

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_errors import one_line_error
 
 from mosaic_data.collection.metadata import (
     CurrentEpisode,
@@ -55,13 +56,6 @@ def edited_output(door_output, tmp_path_factory):
     assert not (output / "mosaic" / "door_panda" / "meta" / "mosaic.json").exists()  # what LeRobot does
     return output
 
-
-def _one_line_error(capsys, *words: str) -> str:
-    error = capsys.readouterr().err.strip()
-    assert error.startswith("mosaic-data: error:") and "\n" not in error, error
-    for word in words:
-        assert word in error, error
-    return error
 
 
 def _files(root: Path) -> dict[str, bytes]:
@@ -194,9 +188,9 @@ def test_broken_sidecar_is_one_line_naming_file_and_fix(door_output, tmp_path, c
     for word in [str(path), "not a MOSAIC sidecar", "collect the dataset again", *words]:
         assert word in problem_lines[0], err
     assert cli("push", str(root), "--repo-id", "someone/door", "--dry-run") == 2
-    _one_line_error(capsys, str(path), "not a MOSAIC sidecar", *words)
+    one_line_error(capsys, str(path), "not a MOSAIC sidecar", *words)
     assert cli("view", str(root), "--save", str(tmp_path / "x.rrd")) == 2
-    _one_line_error(capsys, str(path), "not a MOSAIC sidecar")
+    one_line_error(capsys, str(path), "not a MOSAIC sidecar")
 
 
 def test_missing_sidecar_says_how_to_bring_it_back(door_output, tmp_path, cli, capsys):
@@ -204,7 +198,7 @@ def test_missing_sidecar_says_how_to_bring_it_back(door_output, tmp_path, cli, c
     shutil.copytree(door_output / "mosaic" / "door_panda", root)
     (root / "meta" / "mosaic.json").unlink()
     assert cli("push", str(root), "--repo-id", "someone/door", "--dry-run") == 2
-    _one_line_error(capsys, "no meta/mosaic.json", "lerobot-edit-dataset", f"into {root / 'meta'}/")
+    one_line_error(capsys, "no meta/mosaic.json", "lerobot-edit-dataset", f"into {root / 'meta'}/")
 
 
 # ---------------------------------------------------------------------- item 3: offline, no network, dry run
@@ -223,7 +217,7 @@ def test_push_offline_is_one_line_and_changes_nothing(panda_copy, monkeypatch, c
     monkeypatch.setattr(constants, "HF_HUB_OFFLINE", True)
     before = _files(panda_copy)
     assert cli("push", str(panda_copy), "--repo-id", "someone/door_panda") == 2
-    _one_line_error(capsys, "HF_HUB_OFFLINE=1", "network", "--dry-run")
+    one_line_error(capsys, "HF_HUB_OFFLINE=1", "network", "--dry-run")
     assert _files(panda_copy) == before
 
 
@@ -245,7 +239,7 @@ def test_push_without_network_is_one_line(panda_copy, monkeypatch, cli, capsys):
         assert cli("push", str(panda_copy), "--repo-id", "someone/door_panda") == 2
     finally:
         _http.set_client_factory(_http.default_client_factory)
-    _one_line_error(capsys, "cannot be reached", "name resolution", "network connection", "--dry-run")
+    one_line_error(capsys, "cannot be reached", "name resolution", "network connection", "--dry-run")
     assert requests and all("huggingface.co" in url for url in requests)
 
 
@@ -308,5 +302,5 @@ def test_push_not_logged_in_is_one_line(panda_copy, monkeypatch, cli, capsys):
         assert cli("push", str(panda_copy), "--repo-id", "someone/door_panda") == 2
     finally:
         _http.set_client_factory(_http.default_client_factory)
-    _one_line_error(capsys, "refused", "401", "hf auth login", "--dry-run")
+    one_line_error(capsys, "refused", "401", "hf auth login", "--dry-run")
     assert _files(panda_copy) == before

@@ -15,6 +15,7 @@ from contextlib import redirect_stdout
 from pathlib import Path
 
 import pytest
+from cli_errors import one_line_error
 
 from mosaic_data.collection.metadata import read_sidecar
 from mosaic_data.collection.plan import episode_seed
@@ -27,13 +28,6 @@ def size(image_size) -> str:
     """The shared collection's image size as ``--image-size`` takes it."""
     return f"{image_size[0]}x{image_size[1]}"
 
-
-def _one_line_error(capsys, *words: str) -> str:
-    error = capsys.readouterr().err.strip()
-    assert error.startswith("mosaic-data: error:") and "\n" not in error, error
-    for word in words:
-        assert word in error, error
-    return error
 
 
 def _tree(folder: Path) -> dict[str, int]:
@@ -105,7 +99,7 @@ def test_merge_overwrite_with_a_bad_repo_id_touches_nothing(shared_folder, tmp_p
     status = cli("merge", "mosaic/door_panda", "mosaic/other_panda", "--repo-id", repo_id, "--overwrite",
                  "--output-dir", str(shared_folder))
     assert status == 2
-    _one_line_error(capsys, "--repo-id", "is not a repo id", "namespace/name")
+    one_line_error(capsys, "--repo-id", "is not a repo id", "namespace/name")
     assert _tree(tmp_path) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shared"]
 
@@ -118,7 +112,7 @@ def test_merge_overwrite_replaces_only_a_dataset_folder(shared_folder, cli, caps
     status = cli("merge", "mosaic/door_panda", "mosaic/other_panda", "--repo-id", "mosaic/keep", "--overwrite",
                  "--output-dir", str(shared_folder))
     assert status == 2
-    _one_line_error(capsys, str(keep), "not a LeRobot dataset", "--overwrite replaces only a dataset folder")
+    one_line_error(capsys, str(keep), "not a LeRobot dataset", "--overwrite replaces only a dataset folder")
     assert _tree(shared_folder) == before
 
     # A LeRobot dataset there is replaced, as --overwrite says.
@@ -136,7 +130,7 @@ def test_collect_overwrite_never_replaces_a_folder_of_other_things(tmp_path, cli
     status = cli("collect", "--task", "door", "--robot", "panda", "--variations", "0", "--episodes", "1", "--overwrite",
                  "--workers", "1", "--image-size", "48x88", "--quiet", "--output-dir", str(tmp_path))
     assert status == 2
-    _one_line_error(capsys, str(folder), "not a LeRobot dataset")
+    one_line_error(capsys, str(folder), "not a LeRobot dataset")
     assert (folder / "thesis.tex").read_text() == "months of work"
     assert sorted(p.name for p in (tmp_path / "mosaic").iterdir()) == ["door_panda"]
 
@@ -170,7 +164,7 @@ def test_interrupted_overwrite_resumes_with_the_same_command(tmp_path, other_pan
 
     # Without --overwrite the old dataset is not replaced, and the error says how to resume.
     assert cli(*[a for a in resume_args if a != "--overwrite"], "--output-dir", str(output)) == 2
-    _one_line_error(capsys, "--overwrite", "resumes the unfinished --overwrite run", str(staging))
+    one_line_error(capsys, "--overwrite", "resumes the unfinished --overwrite run", str(staging))
 
     # The same command again resumes: the committed shard is kept, only the other episode is collected.
     assert cli(*resume_args, "--output-dir", str(output)) == 0
@@ -191,7 +185,7 @@ def test_overwrite_discards_an_unfinished_run_of_other_settings(tmp_path, cli, c
     args = ["collect", "--task", "door", "--robot", "panda", "--variations", "0", "--episodes", "1",
             "--workers", "1", "--image-size", "48x88", "--quiet", "--output-dir", str(output)]
     assert cli(*args) == 2
-    _one_line_error(capsys, "other settings", "--overwrite")
+    one_line_error(capsys, "other settings", "--overwrite")
     assert cli(*args, "--overwrite") == 0
     assert "collected 1 episodes" in capsys.readouterr().out
     assert not staging.exists() and read_sidecar(output / "mosaic" / "door_panda")["episodes"][0]["variation"] == 0
@@ -205,7 +199,7 @@ def test_merge_refuses_collections_with_the_same_episodes(door_output, tmp_path,
     original = door_output / "mosaic" / "door_panda"
     status = cli("merge", str(original), str(copy), "--repo-id", "mosaic/twice", "--output-dir", str(output))
     assert status == 2
-    _one_line_error(capsys, str(original), str(copy), "the same 4 episode(s)", "variation 0 seed 0",
+    one_line_error(capsys, str(original), str(copy), "the same 4 episode(s)", "variation 0 seed 0",
                     "merge each collection once")
     assert not output.exists()
 
@@ -252,7 +246,7 @@ def test_merge_killed_between_its_renames_gets_the_old_dataset_back(door_output,
     old = read_sidecar(retired)
     sources = [str(door_output / "mosaic" / "door_panda"), str(other_panda)]
     assert cli("merge", *sources, "--repo-id", "mosaic/both", "--output-dir", str(output)) == 2
-    _one_line_error(capsys, "already exists", "--overwrite")
+    one_line_error(capsys, "already exists", "--overwrite")
     assert sorted(p.name for p in (output / "mosaic").iterdir()) == ["both"]
     assert read_sidecar(output / "mosaic" / "both") == old
 
@@ -360,7 +354,7 @@ def test_merge_names_the_feature_and_both_shapes_in_full(door_output, small_pand
                  "--output-dir", str(output))
     assert status == 2
     height, width = image_size
-    _one_line_error(capsys, str(small_panda), "feature 'observation.images.agentview' is video [48, 88, 3]",
+    one_line_error(capsys, str(small_panda), "feature 'observation.images.agentview' is video [48, 88, 3]",
                     f"expected video [{height}, {width}, 3]", "--image-size")
     assert not output.exists()
 
@@ -372,7 +366,7 @@ def test_collect_says_a_feature_is_missing(small_panda, tmp_path, cli, capsys):
     del info["features"]["action"]  # a LeRobot dataset of another schema: no action
     (root / "meta" / "info.json").write_text(json.dumps(info))
     assert cli("collect", "--task", "door", "--robot", "panda", "--image-size", "48x88", "--output-dir", str(tmp_path)) == 2
-    _one_line_error(capsys, "another schema", "feature 'action' is missing, expected float32 [7]")
+    one_line_error(capsys, "another schema", "feature 'action' is missing, expected float32 [7]")
 
 
 def test_resolve_dataset_names_a_folder_once_and_the_callers_flag(tmp_path, cli, capsys):
@@ -380,7 +374,7 @@ def test_resolve_dataset_names_a_folder_once_and_the_callers_flag(tmp_path, cli,
 
     missing = tmp_path / "nothing_here"
     assert cli("validate", str(missing)) == 2
-    error = _one_line_error(capsys, "no LeRobot dataset", "with --output-dir")
+    error = one_line_error(capsys, "no LeRobot dataset", "with --output-dir")
     assert error.count(f"{missing}/meta/info.json") == 1
     with pytest.raises(ValueError) as raised:
         resolve_dataset("mosaic/door_panda", tmp_path, where_hint="under $HF_LEROBOT_HOME")

@@ -41,11 +41,14 @@ def test_view_without_a_display_stops_at_once_and_names_save_and_web(door_output
     assert time.monotonic() - start < 60
 
 
-def test_view_web_serves_rerun_web_viewer_until_interrupted(door_output):
+def test_view_web_serves_rerun_web_viewer_until_interrupted(door_output, tmp_path):
     web_port, grpc_port = _free_port(), _free_port()
+    while grpc_port == web_port:  # the kernel may hand the same free port out twice in a row
+        grpc_port = _free_port()
+    errors = (tmp_path / "stderr.txt").open("w")
     process = subprocess.Popen(
         _view_command(door_output, "--pair", "--web", "--web-port", str(web_port), "--grpc-port", str(grpc_port)),
-        env=_without_display(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        env=_without_display(), stdout=subprocess.PIPE, stderr=errors, text=True,
     )
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
@@ -58,7 +61,7 @@ def test_view_web_serves_rerun_web_viewer_until_interrupted(door_output):
             except queue.Empty:
                 continue
             url = next((word for word in line.split() if word.startswith("http://")), None)
-        assert url is not None, f"no URL printed (exit status {process.poll()})"
+        assert url is not None, f"no URL printed (exit status {process.poll()}): {(tmp_path / 'stderr.txt').read_text()[-2000:]}"
         assert url.startswith(f"http://localhost:{web_port}/") and f"localhost%3A{grpc_port}" in url
         with urllib.request.urlopen(url, timeout=30) as response:
             assert response.status == 200 and b"rerun" in response.read().lower()
@@ -127,3 +130,12 @@ def test_pair_recording_gives_each_text_document_its_own_view(door_output, tmp_p
         shown = [d for d in documents if d == origin or d.startswith(origin.rstrip("/") + "/")]
         assert len(shown) == 1, f"the text view at {origin} would get {shown}"
     assert {d for d in documents if any(d == o or d.startswith(o.rstrip("/") + "/") for o in origins)} == set(documents)
+
+
+def test_view_web_refuses_one_port_for_both_servers(door_output):
+    result = subprocess.run(
+        _view_command(door_output, "--web", "--web-port", "9555", "--grpc-port", "9555"),
+        env=_without_display(), capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip() == "mosaic-data: error: --web-port and --grpc-port are both 9555: the two servers need two ports"

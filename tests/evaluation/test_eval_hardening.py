@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from cli_errors import one_line_error
 from video_damage import drop_last_frames, overwrite_middle
 
 from pipelines.evaluation.cli import main as mosaic_eval
@@ -32,9 +33,7 @@ def _run(tmp_path: Path, *args: str, output: Path | None = None) -> tuple[int, P
 
 
 def _one_line_error(capsys) -> str:
-    error = capsys.readouterr().err.strip()
-    assert error.startswith("mosaic-eval: error:") and "\n" not in error, error
-    return error
+    return one_line_error(capsys, command="mosaic-eval")
 
 
 # ---------------------------------------------------------------------------------------------- 1. dead workers
