@@ -11,7 +11,9 @@ queue for policies that predict chunks, like ACT), and the post-processor. Only 
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -273,7 +275,8 @@ class PolicyAgent:
         config.device = "cpu" if not torch.cuda.is_available() else config.device
         if getattr(config, "pretrained_backbone_weights", None):
             config.pretrained_backbone_weights = None  # the checkpoint holds the trained backbone: no ImageNet download
-        policy = policy_class(path, config.type).from_pretrained(path, config=config)
+        with contextlib.redirect_stdout(io.StringIO()):  # LeRobot prints "Loading weights from local directory" through our bar
+            policy = policy_class(path, config.type).from_pretrained(path, config=config)
         preprocessor, postprocessor = make_pre_post_processors(
             config,
             pretrained_path=str(path),

@@ -265,3 +265,10 @@ def test_an_unknown_demo_dataset_names_how_mosaic_eval_finds_datasets(tmp_path, 
     error = _one_line_error(capsys)
     assert code == 2 and "no LeRobot dataset at 'mosaic/no_such_dataset'" in error
     assert "HF_LEROBOT_HOME" in error and "--output-dir" not in error
+
+
+def test_loading_a_checkpoint_prints_nothing_through_the_progress_bar(tmp_path, capfd, tiny_checkpoint):
+    """LeRobot's from_pretrained prints "Loading weights from local directory" in every worker: one bar only."""
+    code, _ = _run(tmp_path, f"--policy.path={tiny_checkpoint}", *SMALL)
+    assert code == 0
+    assert "Loading weights" not in capfd.readouterr().out
