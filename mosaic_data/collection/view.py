@@ -48,6 +48,10 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+SERVE_FLUSH_TIMEOUT_S = 60.0
+"""How long ``--web`` waits for rerun's gRPC server to take the logged episode before it gives up with one line."""
+
+
 def check_port_free(port: int, option: str) -> None:
     """Raise a one-line ValueError if ``port`` cannot be served on (rerun only logs an error, then serves nothing)."""
     if not 1 <= port <= 65535:
@@ -113,7 +117,15 @@ def view_episode(
         recording.serve_grpc(grpc_port=web.grpc, default_blueprint=blueprint)
         rr.serve_web_viewer(web_port=web.web, open_browser=False, connect_to=f"rerun+http://localhost:{web.grpc}/proxy")
         log_all(recording)
-        recording.flush()
+        try:  # an unbounded flush would wait forever for a server that did not come up
+            recording.flush(timeout_sec=SERVE_FLUSH_TIMEOUT_S)
+        except Exception as error:  # rerun raises a plain RuntimeError (or its own error type) on the timeout
+            recording.disconnect()
+            raise ValueError(
+                f"rerun's server on --grpc-port {web.grpc} did not take the recording within "
+                f"{SERVE_FLUSH_TIMEOUT_S:.0f} s ({str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__}): "
+                "choose other ports with --web-port/--grpc-port, or write a file with --save"
+            ) from None
         announce(f"{shown_what} served at {web.url()} (open it in a browser; Ctrl-C to stop)")
         try:
             while True:
