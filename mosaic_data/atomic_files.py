@@ -14,10 +14,11 @@ import tempfile
 from pathlib import Path
 
 
-def _current_umask() -> int:
+def plain_file_mode() -> int:
+    """The mode ``open()`` gives a new file: 0666 less the umask (``mkstemp`` temporaries get 0600)."""
     mask = os.umask(0)  # the only portable way to read it: set and restore at once
     os.umask(mask)
-    return mask
+    return 0o666 & ~mask
 
 
 def write_bytes_atomically(path: Path, content: bytes) -> None:
@@ -26,7 +27,7 @@ def write_bytes_atomically(path: Path, content: bytes) -> None:
     try:
         with os.fdopen(handle, "wb") as stream:
             stream.write(content)
-        os.chmod(temporary, 0o666 & ~_current_umask())
+        os.chmod(temporary, plain_file_mode())
         os.replace(temporary, path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)

@@ -24,17 +24,16 @@ def _robots(choice: str) -> list[str]:
 
 def cmd_tasks(args: argparse.Namespace) -> int:
     from mosaic_data.envs import gym_id
-    from mosaic_data.tasks import TASK_NAMES as TASKS  # the table only, not the simulator
-    from mosaic_data.tasks import get_task_spec as get_task_class
+    from mosaic_data.tasks import TASK_NAMES, get_task_spec  # the table only, not the simulator
 
-    tasks = [args.task] if args.task else list(TASKS)
+    tasks = [args.task] if args.task else list(TASK_NAMES)
     total = 0
     for task in tasks:
-        task_class = get_task_class(task)
-        print(f"{task} ({gym_id(task)}, {len(task_class.variations)} variations, horizon {task_class.horizon_steps} steps)")
-        for variation in task_class.variations:
+        spec = get_task_spec(task)
+        print(f"{task} ({gym_id(task)}, {len(spec.variations)} variations, horizon {spec.horizon_steps} steps)")
+        for variation in spec.variations:
             print(f"  {variation.index:>2}  {variation.description}")
-        total += len(task_class.variations)
+        total += len(spec.variations)
     print(f"{len(tasks)} tasks, {total} variations")
     return 0
 
@@ -42,6 +41,7 @@ def cmd_tasks(args: argparse.Namespace) -> int:
 def cmd_experts(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from mosaic_data.recording_files import check_output_file
     from mosaic_data.rollout import SUCCESS_TARGET, expert_episodes, write_rerun, write_video
     from mosaic_data.tasks import get_task_class
 
@@ -52,9 +52,9 @@ def cmd_experts(args: argparse.Namespace) -> int:
     if not 1 <= args.episodes <= MAX_EPISODES:  # the parser's type bounds it already; a caller may skip the parser
         raise ValueError(f"--episodes must be from 1 to {MAX_EPISODES} per variation and robot, got {args.episodes}")
     if args.video is not None:
-        _check_writable(args.video, ".mp4", "--video", f"{args.task}.mp4")
+        check_output_file(args.video, ".mp4", "--video", f"{args.task}.mp4")  # before minutes of rollouts
     if args.rerun is not None:
-        _check_writable(args.rerun, ".rrd", "--rerun", f"{args.task}.rrd")
+        check_output_file(args.rerun, ".rrd", "--rerun", f"{args.task}.rrd")
     output = args.video or args.rerun
     seeds = [args.seed + i for i in range(args.episodes)]
     robots = _robots(args.robot)
@@ -87,13 +87,6 @@ def cmd_experts(args: argparse.Namespace) -> int:
     if not all_ok:
         print(f"some variations are below the {SUCCESS_TARGET:.0%} success target", file=sys.stderr)
     return 0 if all_ok else 1
-
-
-def _check_writable(path: Path, suffix: str, option: str, example: str) -> None:
-    """Check an output file before any rollout: a bad path used to fail after minutes of rollouts."""
-    from mosaic_data.recording_files import check_output_file
-
-    check_output_file(path, suffix, option, example)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -25,7 +25,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from mosaic_data.tasks import TASK_NAMES as TASKS  # task keys only: registering must not load the simulator
+from mosaic_data.tasks import TASK_NAMES  # task keys only: registering must not load the simulator
 from mosaic_data.tasks import CLASS_NAMES, make_task_env
 from mosaic_data.tasks.spec import ACTION_DIM, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM, get_task_spec, validate_robot
 
@@ -268,7 +268,7 @@ def make_registered_env(**kwargs: Any) -> MosaicGymEnv:
 
 def register_envs() -> None:
     """Register ``mosaic/<Name>-v0`` for every task of the suite (idempotent), truncated at the task's horizon."""
-    for task in TASKS:
+    for task in TASK_NAMES:
         env_id = gym_id(task)
         if env_id not in gym.registry:
             gym.register(

@@ -11,11 +11,14 @@ from __future__ import annotations
 import io
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from mosaic_data.atomic_files import plain_file_mode
 
 JPEG_QUALITY = 80
 """Camera frames in recordings: 100x180 frames take about 4 KB instead of 54 KB raw, hard to tell apart."""
@@ -30,8 +33,16 @@ def check_output_file(path: Path, suffix: str, option: str, example: str) -> Non
         raise ValueError(f"{option} {path} is a folder: give a file in it, e.g. {option} {path / example}")
     if path.suffix.lower() != suffix:
         raise ValueError(f"{option} must name a {suffix} file, got {str(path)!r}: e.g. {option} {path.with_suffix(suffix)}")
-    folder = path.absolute().parent
-    existing = folder
+    check_folder_takes_file(path, option)
+
+
+def check_folder_takes_file(path: Path, option: str) -> None:
+    """Raise a one-line ValueError unless a file can be created at ``path`` (its missing folders are made later).
+
+    The nearest existing folder above it must be a folder, and writable: probed with a real file, since root
+    passes every permission check and a read-only file system answers only to a write.
+    """
+    existing = path.absolute().parent
     while not existing.exists():  # the folders that will be made; the first one that exists must take them
         existing = existing.parent
     if not existing.is_dir():
@@ -53,9 +64,7 @@ def file_written_whole(path: Path) -> Iterator[Path]:
     temporary = Path(name)
     try:
         yield temporary
-        mask = os.umask(0)  # mkstemp makes 0600: give the mode a plain open() would
-        os.umask(mask)
-        os.chmod(temporary, 0o666 & ~mask)
+        os.chmod(temporary, plain_file_mode())  # mkstemp makes 0600: give the mode a plain open() would
         os.replace(temporary, path)
     except BaseException:
         temporary.unlink(missing_ok=True)
@@ -85,3 +94,44 @@ def jpeg_bytes(image: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     buffer = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="JPEG", quality=quality)
     return buffer.getvalue()
+
+
+def send_jpegs(stream, entity: str, frames: Sequence[np.ndarray], indexes: list) -> None:
+    """Log ``frames`` (RGB uint8) at ``indexes`` as one column of JPEG images."""
+    import rerun as rr
+
+    blobs = [jpeg_bytes(frame) for frame in frames]
+    stream.send_columns(entity, indexes=indexes, columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs)))
+
+
+@dataclass(frozen=True)
+class StepTimelines:
+    """The timelines of a recording of episodes played one after the other: ``episode`` (its number), a running
+    step count over all of them (``counter``), the step within the episode (``step``) and ``time`` at ``fps`` in
+    exact nanoseconds, so the viewer's default timeline plays in real time."""
+
+    fps: int
+    counter: str
+    step: str = "step"
+
+    def _time(self, global_steps):
+        return (np.asarray(global_steps) * (10**9 // self.fps)).astype("timedelta64[ns]")  # exact, not float
+
+    def columns(self, episode: int, first: int, count: int) -> list:
+        """Index columns of ``count`` steps of ``episode`` whose first one is global step ``first``."""
+        import rerun as rr
+
+        steps = np.arange(count)
+        return [
+            rr.TimeColumn("episode", sequence=np.full(count, episode)),
+            rr.TimeColumn(self.counter, sequence=first + steps),
+            rr.TimeColumn(self.step, sequence=steps),
+            rr.TimeColumn("time", duration=self._time(first + steps)),
+        ]
+
+    def set(self, stream, episode: int, first: int, step: int) -> None:
+        """Row-wise logging at ``step`` of ``episode`` (whose first step is global step ``first``)."""
+        stream.set_time("episode", sequence=episode)
+        stream.set_time(self.counter, sequence=first + step)
+        stream.set_time(self.step, sequence=step)
+        stream.set_time("time", duration=self._time(first + step))

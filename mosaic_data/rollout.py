@@ -111,7 +111,7 @@ def write_rerun(path: Path, episodes: list[Episode], fps: int = 20) -> None:
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from mosaic_data.recording_files import jpeg_bytes, rerun_file
+    from mosaic_data.recording_files import StepTimelines, rerun_file, send_jpegs
 
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
@@ -136,29 +136,17 @@ def write_rerun(path: Path, episodes: list[Episode], fps: int = 20) -> None:
         for name in state_names:
             recording.log(f"/state/{name}", rr.SeriesLines(names=name), static=True)
         recording.log("/success", rr.SeriesLines(names="success"), static=True)
+        timelines = StepTimelines(fps, counter="frame", step="episode_step")
         first = 0
         for index, episode in enumerate(episodes):
-            steps = np.arange(episode.length)
-            frame = first + steps
-            times = [
-                rr.TimeColumn("episode", sequence=np.full(episode.length, index)),
-                rr.TimeColumn("frame", sequence=frame),
-                rr.TimeColumn("episode_step", sequence=steps),
-                rr.TimeColumn("time", duration=(frame * (10**9 // fps)).astype("timedelta64[ns]")),  # exact, not float
-            ]
-            recording.set_time("episode", sequence=index)
-            recording.set_time("frame", sequence=first)
-            recording.set_time("episode_step", sequence=0)
-            recording.set_time("time", duration=np.timedelta64(first * (10**9 // fps), "ns"))
+            times = timelines.columns(index, first, episode.length)
+            timelines.set(recording, index, first, 0)
             recording.log("/episode", rr.TextDocument(
                 f"{episode.task} / {episode.robot} / variation {episode.variation}: {episode.description} "
                 f"(seed {episode.seed}, {'success' if episode.success else 'failure'} in {episode.length} steps)"
             ))
             if episode.frames:
-                blobs = [jpeg_bytes(image) for image in episode.frames[: episode.length]]
-                recording.send_columns(
-                    "/camera", indexes=times, columns=rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs))
-                )
+                send_jpegs(recording, "/camera", episode.frames[: episode.length], times)
             actions = np.asarray(episode.actions[: episode.length], dtype=np.float64)
             for column, name in enumerate(ACTION_NAMES):
                 recording.send_columns(f"/action/{name}", indexes=times, columns=rr.Scalars.columns(scalars=actions[:, column]))

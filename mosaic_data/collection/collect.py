@@ -85,16 +85,15 @@ class CollectReport:
 # ---------------------------------------------------------------------- input checks
 def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
     """The datasets to produce, after checking every input (raises ValueError naming the fix)."""
-    from mosaic_data.tasks import TASK_NAMES as TASKS, validate_robot  # the table only, not the simulator
-    from mosaic_data.tasks import get_task_spec as get_task_class
+    from mosaic_data.tasks import TASK_NAMES, get_task_spec, validate_robot  # the table only, not the simulator
 
     if request.task == ALL_TASKS:
         if request.variations is not None:
             raise ValueError("--variations cannot be combined with --task all: variation indices differ per task")
-        tasks = list(TASKS)
+        tasks = list(TASK_NAMES)
     else:
         tasks = [request.task]
-        get_task_class(request.task)
+        get_task_spec(request.task)
     for robot in request.robots:
         validate_robot(robot)
     if not 1 <= request.episodes <= MAX_EPISODES:
@@ -111,10 +110,10 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
     _check_writable(request.output_dir)
     jobs = []
     for task in tasks:
-        task_class = get_task_class(task)
-        variations = request.variations if request.variations is not None else [v.index for v in task_class.variations]
+        spec = get_task_spec(task)
+        variations = request.variations if request.variations is not None else [v.index for v in spec.variations]
         for variation in variations:
-            task_class.validate_variation(variation)
+            spec.validate_variation(variation)
         for robot in request.robots:
             settings = CollectionSettings(
                 task=task,
@@ -194,16 +193,17 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
     jobs = plan_jobs(request)
     for root in [job.root for job in jobs] + [dataset_root(request.output_dir, merged_repo_id_for(r)) for r in request.robots]:
         remove_stale_work(root)  # a killed merge's leftovers (of processes that are gone): an old dataset comes back
+    staged_same = {job.repo_id: _staged_same_settings(job) for job in jobs}  # an unfinished run of these settings
     states = {
         job.repo_id: _existing_dataset_state(
-            job.root, [source_of(job)], request, resumable=job.staging_dir if _staged_same_settings(job) else None
+            job.root, [source_of(job)], request, resumable=job.staging_dir if staged_same[job.repo_id] else None
         )
         for job in jobs
     }
     for job in jobs:
         if states[job.repo_id] != "complete" and not request.overwrite:
             _check_staging(job)
-    discard = {job.repo_id for job in jobs if request.overwrite and not _staged_same_settings(job)}
+    discard = {job.repo_id for job in jobs if request.overwrite and not staged_same[job.repo_id]}
     merged, merged_complete = [], []
     if request.task == ALL_TASKS:
         for robot in request.robots:

@@ -89,14 +89,14 @@ def add_data_digests(root: Path, sidecar: dict[str, Any]) -> None:
 
 
 def variation_table(task: str) -> dict[str, Any]:
-    from mosaic_data.tasks.spec import get_task_spec as get_task_class  # the table only, not the simulator
+    from mosaic_data.tasks.spec import get_task_spec  # the table only, not the simulator
 
-    task_class = get_task_class(task)
+    spec = get_task_spec(task)
     return {
-        "horizon_steps": task_class.horizon_steps,
+        "horizon_steps": spec.horizon_steps,
         "variations": [
             {"index": v.index, "description": v.description, "params": json.loads(json.dumps(v.params, default=_json_default))}
-            for v in task_class.variations
+            for v in spec.variations
         ],
     }
 

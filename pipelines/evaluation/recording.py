@@ -26,9 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from mosaic_data.collection.schema import ACTION_NAMES, FPS
-from mosaic_data.recording_files import jpeg_bytes
+from mosaic_data.recording_files import StepTimelines, jpeg_bytes, send_jpegs
 
 from .rollouts import EpisodeResult
+
+TIMELINES = StepTimelines(FPS, counter="eval_step")
+"""``time`` at the control rate, ``eval_step`` over all recorded episodes, ``step`` within one."""
 
 ATTENTION_DRAW_ORDER = 10.0
 """Above the camera frame: rerun draws 2D images with a higher draw order on top."""
@@ -82,32 +85,15 @@ class EvaluationRecording:
 
     def _times(self, count: int) -> list:
         """Index columns of this episode's first ``count`` steps."""
-        import rerun as rr
-
-        steps = np.arange(count)
-        eval_steps = self._global_step + steps
-        return [
-            rr.TimeColumn("episode", sequence=np.full(count, self.episodes)),
-            rr.TimeColumn("eval_step", sequence=eval_steps),
-            rr.TimeColumn("step", sequence=steps),
-            rr.TimeColumn("time", duration=(eval_steps * (10**9 // FPS)).astype("timedelta64[ns]")),  # exact, not float
-        ]
+        return TIMELINES.columns(self.episodes, self._global_step, count)
 
     def _set_time(self, step: int) -> None:
         """Row-wise logging (the episode's text, the conditioning frames) at ``step`` of this episode."""
-        self.stream.set_time("episode", sequence=self.episodes)
-        self.stream.set_time("eval_step", sequence=self._global_step + step)
-        self.stream.set_time("step", sequence=step)
-        self.stream.set_time("time", duration=np.timedelta64((self._global_step + step) * (10**9 // FPS), "ns"))
+        TIMELINES.set(self.stream, self.episodes, self._global_step, step)
 
     def _send_jpegs(self, entity: str, frames) -> None:
-        import rerun as rr
-
-        if len(frames) == 0:
-            return
-        blobs = [jpeg_bytes(frame) for frame in frames]
-        columns = rr.EncodedImage.columns(blob=blobs, media_type=["image/jpeg"] * len(blobs))
-        self.stream.send_columns(entity, indexes=self._times(len(blobs)), columns=columns)
+        if len(frames):
+            send_jpegs(self.stream, entity, frames, self._times(len(frames)))
 
     def _send_scalars(self, entity: str, values: np.ndarray) -> None:
         import rerun as rr

@@ -11,7 +11,6 @@ confusion matrix (which variation the agent did, :mod:`.confusion`).
 from __future__ import annotations
 
 import os
-import tempfile
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ import numpy as np
 
 from mosaic_data.atomic_files import write_bytes_atomically
 from mosaic_data.collection.metadata import write_json_atomically
+from mosaic_data.recording_files import check_folder_takes_file
 
 from .options import EvaluationError
 from .confusion import confusion_markdown, confusion_matrix, wrong_variation_text
@@ -198,18 +198,10 @@ def _check_writable(path: Path, flag: str) -> None:
         example = {"--output": "results.json", "--rerun": "eval.rrd"}.get(flag)
         fix = f"name a file in it, e.g. {path / example}" if example else "choose another --output"
         raise EvaluationError(f"{flag} {path} is a folder, where a file must go: {fix}")
-    ancestor = path.parent
-    while not ancestor.exists() and ancestor != ancestor.parent:
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise EvaluationError(f"{flag} {path} lies under {ancestor}, which is a file, not a folder: choose another path")
     if path.exists() and not os.access(path, os.W_OK):
         raise EvaluationError(f"{flag} {path} exists and is read-only: choose another path or make it writable")
-    try:  # a real file, not os.access: root passes every permission check, a read-only file system does not
-        with tempfile.NamedTemporaryFile(dir=ancestor, prefix=".mosaic-eval-probe-"):
-            pass
-    except OSError as error:
-        raise EvaluationError(
-            f"{flag} {path} cannot be written: {ancestor} is not a writable folder ({error.strerror}): choose another path"
-        ) from None
+    try:
+        check_folder_takes_file(path, flag)
+    except ValueError as error:
+        raise EvaluationError(str(error)) from None
 
