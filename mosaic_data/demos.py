@@ -20,7 +20,7 @@ from mosaic_data.rollout import run_expert_episode
 from mosaic_data.tasks.base import MosaicTaskEnv
 
 DEMO_ATTEMPTS = 5
-"""Seeds tried (``seed``, ``seed + 1``, ...) before giving up on a demonstration; the experts are >= 95%."""
+"""Seeds tried (``seed``, ``seed + retry_stride``, ...) before giving up on a demonstration; the experts are >= 95%."""
 
 
 class DemonstrationError(RuntimeError):
@@ -46,14 +46,17 @@ def record_demonstration(
     seed: int,
     pick_frames: Callable[[int], Sequence[int]] | None = None,
     attempts: int = DEMO_ATTEMPTS,
+    retry_stride: int = 1,
 ) -> Demonstration:
-    """Run ``env``'s expert from ``seed`` (then ``seed + 1``, ...) until it succeeds; return its frames.
+    """Run ``env``'s expert from ``seed`` (then ``seed + retry_stride``, ...) until it succeeds; return its frames.
 
     The demonstration has one frame per action, as a recorded dataset episode (the frame after the final
     action is left out). ``pick_frames(length)`` chooses the frame indices to render (all when None).
+    ``retry_stride`` spaces the retries' seeds: evaluation keeps them clear of the next episode's seed
+    (:data:`mosaic_data.constants.DEMO_RETRY_STRIDE`).
     """
     for attempt in range(attempts):
-        demo_seed = seed + attempt
+        demo_seed = seed + retry_stride * attempt
         probe = run_expert_episode(env, demo_seed)
         if not probe.success:
             continue
@@ -82,5 +85,5 @@ def record_demonstration(
         )
     raise DemonstrationError(
         f"the {env.robot_key} expert failed on {env.task_name} variation {env.variation_index} for seeds "
-        f"{seed}..{seed + attempts - 1}"
+        f"{', '.join(str(seed + retry_stride * attempt) for attempt in range(attempts))}"
     )

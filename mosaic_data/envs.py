@@ -187,7 +187,7 @@ class MosaicGymEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """A new instance (``seed`` fixes it); ``options={"variation": k}`` switches to variation k from now on."""
-        variation = self._variation_option(options)
+        variation = self.reset_variation(options)
         super().reset(seed=seed)
         instance_seed = seed if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
         self._variation = variation
@@ -223,11 +223,11 @@ class MosaicGymEnv(gym.Env):
             self._task_env = None
         self._frame = None
 
-    # ------------------------------------------------------------------ helpers
-    def _variation_option(self, options: Mapping[str, Any] | None) -> int:
-        """The variation ``reset`` runs: ``options["variation"]`` if given (checked first, so that a bad one changes
-        nothing), else the current one. Other keys are left alone: wrappers pass their own through ``options``
-        (LeRobot's evaluation sends ``lerobot_new_rollout``); only a near miss of ``variation`` is an error."""
+    def reset_variation(self, options: Mapping[str, Any] | None) -> int:
+        """The variation ``reset(options=options)`` runs (a wrapper that seeds by variation asks first):
+        ``options["variation"]`` if given (checked first, so that a bad one changes nothing), else the current one.
+        Other keys are left alone: wrappers pass their own through ``options`` (LeRobot's evaluation sends
+        ``lerobot_new_rollout``); only a near miss of ``variation`` is an error."""
         if options is None:
             return self._variation
         if not isinstance(options, Mapping):
@@ -239,6 +239,7 @@ class MosaicGymEnv(gym.Env):
             return self._variation
         return self._spec.validate_variation(options["variation"])
 
+    # ------------------------------------------------------------------ helpers
     def _observation(self) -> dict[str, Any]:
         observation: dict[str, Any] = {"agent_pos": self.task_env.robot_state()}
         self._frame = self.task_env.render_agentview() if self.observe_image else None

@@ -144,12 +144,15 @@ def test_make_with_horizon_names_max_episode_steps():
 
 
 def test_lerobot_env_is_truncated_by_time_limit_and_builds_no_scene_until_reset():
-    from pipelines.evaluation.lerobot_env import make_demo_conditioned_env
+    from lerobot.envs.utils import FreezeAfterEpisodeEnd
+
+    from pipelines.evaluation.lerobot_env import DemoConditionedEnv, make_demo_conditioned_env
 
     env = make_demo_conditioned_env("door", 1, "panda", "sawyer", HEIGHT, WIDTH, 4, episode_length=3)
-    assert isinstance(env.env, gymnasium.wrappers.TimeLimit)
+    assert isinstance(env, FreezeAfterEpisodeEnd) and isinstance(env.env, DemoConditionedEnv)
+    assert isinstance(env.env.env, gymnasium.wrappers.TimeLimit)
     assert env.get_wrapper_attr("_max_episode_steps") == 3  # what LeRobot's evaluation loop reads
-    assert env.unwrapped._task_env is None and env._demo_env is None
+    assert env.unwrapped._task_env is None and env.env._source is None
     env.close()
 
 
@@ -213,14 +216,26 @@ def test_reset_option_switches_the_variation_in_the_same_env():
 
 
 def test_lerobot_env_demonstrates_the_variation_chosen_at_reset():
+    from mosaic_data.constants import DEMO_RETRY_STRIDE
+    from mosaic_data.demos import DEMO_ATTEMPTS
     from pipelines.evaluation.lerobot_env import make_demo_conditioned_env
+    from pipelines.evaluation.seeds import episode_seeds
 
     env = make_demo_conditioned_env("door", 0, "panda", "sawyer", HEIGHT, WIDTH, 4, episode_length=3)
     try:
         observation, info = env.reset(seed=7, options={"variation": 3})
         assert info["variation"] == 3 and env.unwrapped.task_description == TASK_SPECS["door"].variations[3].description
-        assert env._demo_env.variation_index == 3, "the demonstration shows the new variation"
+        demonstration = env.get_wrapper_attr("demonstration")
+        assert demonstration.variation == 3, "the demonstration shows the new variation"
         assert observation["demo"].shape == (4, HEIGHT, WIDTH, 3)
+        seeds = episode_seeds(7, 3)
+        assert info["seed"] == seeds.agent and info["episode_seed"] == 7, "seeded as variation 3, by the seed rule"
+        assert info["demo_seed"] == demonstration.seed == seeds.demo
+
+        _, info = env.reset()  # no seed: one is drawn, and the rule still ties the instances to it
+        seeds = episode_seeds(info["episode_seed"], 3)
+        assert info["seed"] == seeds.agent
+        assert info["demo_seed"] in [seeds.demo + DEMO_RETRY_STRIDE * retry for retry in range(DEMO_ATTEMPTS)]
     finally:
         env.close()
 

@@ -11,12 +11,18 @@ import json
 import re
 from pathlib import Path
 
-from mosaic_data.tasks.spec import ACTION_DIM, CONTROL_FREQ_HZ, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
+from mosaic_data.constants import (  # noqa: F401  (CAMERA_KEY and FPS are imported from here too)
+    ACTION_DIM,
+    ACTION_KEY,
+    CAMERA_KEY,
+    FPS,
+    IMAGE_HEIGHT,
+    IMAGE_WIDTH,
+    STATE_DIM,
+    STATE_KEY,
+)
 
 REPO_NAMESPACE = "mosaic"
-CAMERA_KEY = "observation.images.agentview"
-FPS = CONTROL_FREQ_HZ
-"""Frames per second of every dataset: one frame per 20 Hz control step."""
 
 STATE_NAMES = ["x", "y", "z", "r00", "r01", "r02", "r10", "r11", "r12", "gripper_opening"]
 ACTION_NAMES = ["x", "y", "z", "rx", "ry", "rz", "gripper"]
@@ -30,8 +36,8 @@ def dataset_features(image_height: int = IMAGE_HEIGHT, image_width: int = IMAGE_
             "shape": (image_height, image_width, 3),
             "names": ["height", "width", "channels"],
         },
-        "observation.state": {"dtype": "float32", "shape": (STATE_DIM,), "names": list(STATE_NAMES)},
-        "action": {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
+        STATE_KEY: {"dtype": "float32", "shape": (STATE_DIM,), "names": list(STATE_NAMES)},
+        ACTION_KEY: {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
         "variation": {"dtype": "int64", "shape": (1,), "names": None},
         "next.success": {"dtype": "bool", "shape": (1,), "names": None},
         "next.done": {"dtype": "bool", "shape": (1,), "names": None},

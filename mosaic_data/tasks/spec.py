@@ -14,14 +14,13 @@ import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
+# Rates and sizes are the toolkit's shared conventions; imported from there and importable from here, as before.
+from mosaic_data.constants import ACTION_DIM, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM  # noqa: F401
+from mosaic_data.constants import FPS as CONTROL_FREQ_HZ  # noqa: F401
+
 ROBOTS: dict[str, str] = {"panda": "Panda", "sawyer": "Sawyer"}
 """Robot key -> robosuite robot name. The Panda is the agent, the Sawyer the demonstrator."""
 
-CONTROL_FREQ_HZ = 20
-IMAGE_HEIGHT = 100
-IMAGE_WIDTH = 180
-STATE_DIM = 10
-ACTION_DIM = 7
 GRIPPER_OPEN = -1.0
 GRIPPER_CLOSED = 1.0
 

@@ -13,11 +13,12 @@ import time
 
 import torch
 
-from pipelines.bench.policy_train_step import IMAGE_KEY, paper_config, peak_rss_gib
+from mosaic_data.constants import CAMERA_KEY, STATE_DIM, STATE_KEY
+from pipelines.bench.policy_train_step import paper_config, peak_rss_gib
 
 
 def measure(threads: int, calls: int, layers: int, height: int, width: int) -> None:
-    from mosaic_policy.modeling_mosaic import MosaicPolicy
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
     torch.set_num_threads(threads)
     policy = MosaicPolicy(paper_config(height, width, n_attention_layers=layers)).eval()
@@ -25,7 +26,7 @@ def measure(threads: int, calls: int, layers: int, height: int, width: int) -> N
     start = time.perf_counter()
     policy.set_demo(video)
     set_demo_ms = (time.perf_counter() - start) * 1e3
-    observation = {IMAGE_KEY: torch.rand(1, 3, height, width), "observation.state": torch.randn(1, 10)}
+    observation = {CAMERA_KEY: torch.rand(1, 3, height, width), STATE_KEY: torch.randn(1, STATE_DIM)}
     with torch.inference_mode():
         for _ in range(10):
             policy.predict_action_chunk(observation)

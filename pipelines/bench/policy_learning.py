@@ -6,7 +6,7 @@ Every stage is the tool a user runs by hand, as a subprocess, so the figures are
 
 1. `mosaic-data collect --task door --robot both ...` writes the agent (Panda) and demonstrator (Sawyer)
    datasets under DIR/data (reused when already complete: the collector resumes or leaves them alone);
-2. `lerobot-train --policy.type=mosaic ...` trains on them and saves checkpoints every `save_every` steps;
+2. `lerobot-train --policy.type=mosaic ...` (or a baseline's type, `--policy-type`) trains on them and saves checkpoints every `save_every` steps;
 3. `mosaic-eval --policy.path=<checkpoint> ...` rolls out every saved checkpoint on held-out instances (seeds
    from 10^9, never collected) with a fresh Sawyer demonstration per episode (another held-out instance).
 
@@ -44,6 +44,9 @@ class Preset:
     policy_options: tuple[str, ...] = field(default_factory=tuple)
 
 
+POLICY_CHOICES = ("mosaic", "tosil", "lstm_osil", "mlp_osil", "daml")
+"""The policy types of the paper's Table I (mosaic_policy.POLICY_TYPES; listed here so --help imports no torch)."""
+
 PRESETS: dict[str, Preset] = {
     "cpu": Preset(),
     "paper": Preset(
@@ -64,6 +67,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--task", default="door", help="task (see `mosaic-data tasks`)")
+    parser.add_argument("--policy-type", default="mosaic", choices=POLICY_CHOICES,
+                        help="policy to train: MOSAIC or one of the paper's baselines (default mosaic)")
     parser.add_argument("--variations", default=None, help="e.g. 0,2 (default: every variation)")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     parser.add_argument("--output", type=Path, required=True, help="folder for data, checkpoints and results")
@@ -129,7 +134,7 @@ def train(args: argparse.Namespace, preset: Preset, data_dir: Path, train_dir: P
     agent, demo = f"mosaic/{args.task}_panda", f"mosaic/{args.task}_sawyer"
     command = [
         _bin("lerobot-train"),
-        "--policy.type=mosaic",
+        f"--policy.type={args.policy_type}",
         f"--dataset.repo_id={agent}",
         f"--dataset.root={data_dir / agent}",
         f"--policy.demo_repo_id={demo}",
@@ -227,9 +232,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  step {step}: one-shot success {100 * point['success']:.0f}%, wrong variation "
               f"{100 * (point['wrong_variation_share'] or 0):.0f}%, per variation "
               + ", ".join(f"{k}: {100 * v:.0f}%" for k, v in point["per_variation"].items()), flush=True)
-    plot_learning_curve(curve, args.output / "learning_curve.png", f"{args.task}: one-shot success vs training steps")
+    plot_learning_curve(
+        curve, args.output / "learning_curve.png", f"{args.task}, {args.policy_type}: one-shot success vs training steps"
+    )
     summary = {
         "task": args.task,
+        "policy_type": args.policy_type,
         "variations": args.variations or "all",
         "preset": args.preset,
         "settings": asdict(preset),

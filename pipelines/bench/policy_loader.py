@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-IMAGE_KEY = "observation.images.agentview"
+from mosaic_data.constants import ACTION_KEY, CAMERA_KEY, FPS, N_DEMO_FRAMES, STATE_KEY
 
 
 def write_pair(base: Path, episodes: int, length: int, height: int, width: int) -> tuple[Path, Path]:
@@ -43,7 +43,7 @@ def main():
 
     from lerobot.datasets import LeRobotDataset
 
-    from mosaic_policy.paired_sampling import PairedDemoSampler
+    from mosaic_policy.common.paired_sampling import PairedDemoSampler
 
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
@@ -53,12 +53,12 @@ def main():
         from mosaic_policy import MosaicConfig
 
         config = MosaicConfig()  # the paper's window: 7 frames 0.25 s apart, the 35 actions under them
-        frames = [i / 20 for i in config.observation_delta_indices]
-        actions = [i / 20 for i in config.action_delta_indices]
+        frames = [i / FPS for i in config.observation_delta_indices]
+        actions = [i / FPS for i in config.action_delta_indices]
         agent = LeRobotDataset(
             "mosaic/bench_panda",
             root=agent_root,
-            delta_timestamps={IMAGE_KEY: frames, "observation.state": frames, "action": actions},
+            delta_timestamps={CAMERA_KEY: frames, STATE_KEY: frames, ACTION_KEY: actions},
             return_uint8=True,
         )
         rng = np.random.default_rng(0)
@@ -71,7 +71,7 @@ def main():
 
         tasks = [item["task"] for item in items]
         episodes = [int(item["episode_index"]) for item in items]
-        sync = PairedDemoSampler("mosaic/bench_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent.meta, threads=0)
+        sync = PairedDemoSampler("mosaic/bench_sawyer", demo_root, CAMERA_KEY, N_DEMO_FRAMES, agent_meta=agent.meta, threads=0)
         sync.sample(tasks[:2], episodes[:2])
         start = time.perf_counter()
         for i in range(0, args.samples, args.batch_size):
@@ -82,7 +82,7 @@ def main():
         print(f"paired samples, one worker doing both: {paired:.1f} samples/s")
 
         threaded = PairedDemoSampler(
-            "mosaic/bench_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent.meta, threads=args.threads
+            "mosaic/bench_sawyer", demo_root, CAMERA_KEY, N_DEMO_FRAMES, agent_meta=agent.meta, threads=args.threads
         )
         waits = []
         for i in range(0, args.samples, args.batch_size):

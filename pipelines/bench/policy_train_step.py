@@ -17,7 +17,7 @@ import torch
 
 from lerobot.configs import FeatureType, PolicyFeature
 
-IMAGE_KEY = "observation.images.agentview"
+from mosaic_data.constants import ACTION_DIM, ACTION_KEY, CAMERA_KEY, DEMO_FRAMES_KEY, STATE_DIM, STATE_KEY
 
 
 def paper_config(height: int, width: int, **overrides):
@@ -26,10 +26,10 @@ def paper_config(height: int, width: int, **overrides):
     return MosaicConfig(
         device="cpu",
         input_features={
-            IMAGE_KEY: PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
+            CAMERA_KEY: PolicyFeature(FeatureType.VISUAL, (3, height, width)),
+            STATE_KEY: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
         },
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
+        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))},
         push_to_hub=False,
         **overrides,
     )
@@ -39,11 +39,11 @@ def synthetic_batch(config, batch_size: int, height: int, width: int) -> dict:
     t, d = config.train_obs_frames, config.n_demo_frames
     n_actions = len(config.action_delta_indices)  # the window's 20 Hz actions, as lerobot-train loads them
     return {
-        IMAGE_KEY: torch.rand(batch_size, t, 3, height, width),
-        "observation.state": torch.randn(batch_size, t, 10),
-        "action": torch.rand(batch_size, n_actions, 7) * 2 - 1,
-        "action_is_pad": torch.zeros(batch_size, n_actions, dtype=torch.bool),
-        "demo_frames": torch.rand(batch_size, d, 3, height, width),
+        CAMERA_KEY: torch.rand(batch_size, t, 3, height, width),
+        STATE_KEY: torch.randn(batch_size, t, STATE_DIM),
+        ACTION_KEY: torch.rand(batch_size, n_actions, ACTION_DIM) * 2 - 1,
+        f"{ACTION_KEY}_is_pad": torch.zeros(batch_size, n_actions, dtype=torch.bool),
+        DEMO_FRAMES_KEY: torch.rand(batch_size, d, 3, height, width),
         "task": [f"variation {i % 4}" for i in range(batch_size)],
     }
 
@@ -53,7 +53,7 @@ def peak_rss_gib() -> float:
 
 
 def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> list[float]:
-    from mosaic_policy.modeling_mosaic import MosaicPolicy
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
     config = paper_config(height, width)
     policy = MosaicPolicy(config).train()
@@ -73,7 +73,7 @@ def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> li
 
 def time_attention(pattern: str, batch_size: int, feature_shape: tuple[int, int, int], repeats: int) -> float:
     """Median seconds of forward + backward through the 2-layer attention stack on fixed features."""
-    from mosaic_policy.attention import NonLocalAttentionStack
+    from mosaic_policy.common.attention import NonLocalAttentionStack
 
     c, h, w = feature_shape
     torch.manual_seed(0)
@@ -105,7 +105,7 @@ def main():
     device = "cuda" if torch.cuda.is_available() else "cpu"
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device for this run: cpu (cuda available: {device == 'cuda'})")
 
-    from mosaic_policy.resnet_trunk import ResNetTrunk
+    from mosaic_policy.common.resnet_trunk import ResNetTrunk
 
     feature_shape = ResNetTrunk().feature_shape(args.height, args.width)
     print(f"features per frame at {args.height}x{args.width}: {feature_shape}")

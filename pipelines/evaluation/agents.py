@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import torch
 
-from mosaic_data.tasks.spec import ACTION_DIM, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
+from mosaic_data.constants import ACTION_DIM, ACTION_KEY, CAMERA_KEY, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM, STATE_KEY
 
 from .options import BASELINES, EvaluationError  # noqa: F401  (defined there: light enough for --help)
 
@@ -30,9 +30,6 @@ if TYPE_CHECKING:  # annotations only: the simulator loads when an episode needs
     from mosaic_data.demos import Demonstration
     from mosaic_data.envs import MosaicGymEnv
 
-CAMERA_KEY = "observation.images.agentview"
-STATE_KEY = "observation.state"
-ACTION_KEY = "action"
 PROVIDED = f"{CAMERA_KEY} (3xHxW, any size) and {STATE_KEY} ({STATE_DIM},)"
 """What the MOSAIC environments give a policy, for error messages."""
 
@@ -244,7 +241,7 @@ def workspace_action_stats() -> dict[str, dict[str, torch.Tensor]]:
     """Action min/max = the environment's action box, so that an untrained head's [-1, 1] spans the workspace."""
     from mosaic_data.envs import ACTION_HIGH, ACTION_LOW
 
-    return {"action": {"min": torch.from_numpy(ACTION_LOW.copy()), "max": torch.from_numpy(ACTION_HIGH.copy())}}
+    return {ACTION_KEY: {"min": torch.from_numpy(ACTION_LOW.copy()), "max": torch.from_numpy(ACTION_HIGH.copy())}}
 
 
 class PolicyAgent:
@@ -291,16 +288,16 @@ class PolicyAgent:
         from lerobot.configs import FeatureType, PolicyFeature
 
         from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
-        from mosaic_policy.modeling_mosaic import MosaicPolicy
+        from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
         height, width = spec.image_hw
         config = MosaicConfig(
             device="cpu",
             input_features={
                 CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, height, width)),
-                "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
+                STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
             },
-            output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))},
+            output_features={ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))},
         )
         torch.manual_seed(0)  # the same untrained weights in every worker
         policy = MosaicPolicy(config)

@@ -73,7 +73,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-steps", type=positive_int, default=None, metavar="N",
         help="cap every episode at N steps (smoke tests; default: the task's horizon)",
     )
-    parser.add_argument("--seed", type=non_negative_int, default=EVAL_BASE_SEED, help=f"base seed of the instances (default {EVAL_BASE_SEED})")
+    parser.add_argument(
+        "--seed", type=non_negative_int, default=EVAL_BASE_SEED,
+        help=f"base seed of the instances, as lerobot-eval's --seed: the same value gives the same episodes and numbers "
+        f"there (default {EVAL_BASE_SEED}; lerobot-eval's is 1000)",
+    )
     parser.add_argument(
         "--demo-dataset", default=None, metavar="DATASET",
         help="draw demonstrations from this demonstrator dataset (folder or repo id under $HF_LEROBOT_HOME) "

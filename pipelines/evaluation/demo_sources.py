@@ -1,5 +1,9 @@
 """Where an evaluation episode's demonstration comes from: the demonstrator's expert on a fresh instance (the
-paper's protocol), or an episode of a held-out demonstrator dataset (`mosaic-eval --demo-dataset`)."""
+paper's protocol), or an episode of a held-out demonstrator dataset (`mosaic-eval --demo-dataset`).
+
+:class:`ExpertDemoSource` and :func:`policy_frames` are also what ``lerobot-eval --env.type=mosaic``'s
+environment makes its demonstrations with (:mod:`.lerobot_env`): one source for both front-ends.
+"""
 
 from __future__ import annotations
 
@@ -9,14 +13,25 @@ from pathlib import Path
 
 import numpy as np
 
+from mosaic_data.constants import CAMERA_KEY, DEMO_RETRY_STRIDE, IMAGE_HEIGHT, IMAGE_WIDTH
 from mosaic_data.demos import Demonstration, record_demonstration
 from mosaic_data.tasks import get_task_class, make_task_env
 
-from .agents import CAMERA_KEY, EvaluationError
 from .env_cache import EnvCache
+from .options import EvaluationError
 
 DEMONSTRATOR = "sawyer"
 PickFrames = Callable[[int], Sequence[int]] | None
+
+
+def policy_frames(n_frames: int | None) -> PickFrames:
+    """The frames of a demonstration a policy conditions on, ``n_frames`` of them (first, last, middle-segment
+    centres, as the policy picks them itself); None (all frames) when ``n_frames`` is None."""
+    if n_frames is None:
+        return None
+    from mosaic_policy.common.paired_sampling import demo_frame_indices
+
+    return lambda length: demo_frame_indices(length, n_frames)
 
 
 @dataclass(frozen=True)
@@ -28,19 +43,22 @@ class DemoSourceSpec:
 
 
 class ExpertDemoSource:
-    """A new demonstration per episode, by the demonstrator's scripted expert (environments kept per variation)."""
+    """A new demonstration per episode, by the demonstrator's scripted expert (environments kept per variation,
+    built on first use: no GL context before a worker forks)."""
 
-    def __init__(self, robot: str = DEMONSTRATOR, image_hw: tuple[int, int] = (100, 180)) -> None:
+    def __init__(self, robot: str = DEMONSTRATOR, image_hw: tuple[int, int] = (IMAGE_HEIGHT, IMAGE_WIDTH)) -> None:
         self.robot = robot
         self.image_hw = image_hw
         self._envs = EnvCache()
 
     def demonstration(self, task: str, variation: int, seed: int, pick_frames: PickFrames) -> Demonstration:
+        """The expert's demonstration from ``seed`` (an episode's demo seed, see :mod:`.seeds`); its retries step
+        by DEMO_RETRY_STRIDE, clear of the other episodes' seeds."""
         height, width = self.image_hw
         env = self._envs.get(
             (task, variation), lambda: make_task_env(task, variation, self.robot, image_height=height, image_width=width)
         )
-        return record_demonstration(env, seed, pick_frames)
+        return record_demonstration(env, seed, pick_frames, retry_stride=DEMO_RETRY_STRIDE)
 
     def close(self) -> None:
         self._envs.close()

@@ -6,11 +6,10 @@ import them from here, so there is one definition and the help costs no heavy im
 
 from __future__ import annotations
 
+from mosaic_data.constants import EVAL_BASE_SEED  # noqa: F401  (mosaic-eval's default --seed; standard library only)
+
 BASELINES: tuple[str, ...] = ("expert", "untrained")
 """Sanity rows the evaluation can produce without a checkpoint."""
-
-EVAL_BASE_SEED = 1_000_000_000
-"""Default base seed of the evaluation's instances, far from the collection's seeds."""
 
 
 class EvaluationError(ValueError):

@@ -14,8 +14,8 @@ import argparse
 from dataclasses import dataclass, field
 from typing import Any
 
+from mosaic_data.constants import IMAGE_HEIGHT, IMAGE_WIDTH, MAX_EPISODES_PER_VARIATION, N_DEMO_FRAMES
 from mosaic_data.tasks import select_variations
-from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH
 
 from .agents import (
     AgentSpec,
@@ -28,7 +28,8 @@ from .agents import (
     takes_demo,
 )
 from .demo_sources import DatasetDemoSource, DemoSourceSpec
-from .rollouts import MAX_EPISODES_PER_VARIATION, EpisodeSpec, episode_seeds
+from .rollouts import EpisodeSpec
+from .seeds import SEED_RULE, episode_seed, episode_seeds
 
 DATASET_WHERE_HINT = "under HF_LEROBOT_HOME (set that variable to the folder that holds the datasets)"
 """How mosaic-eval says where repo ids are looked up: it has no --output-dir flag, LeRobot's home decides."""
@@ -43,7 +44,7 @@ class EvaluationPlan:
     episodes_per_variation: int
     seed: int
     episodes: list[EpisodeSpec] = field(default_factory=list)
-    n_demo_frames: int = 4
+    n_demo_frames: int = N_DEMO_FRAMES
     max_steps: int | None = None
 
     @classmethod
@@ -65,7 +66,7 @@ class EvaluationPlan:
 
         agents: list[AgentSpec] = []
         groups: dict[str, dict[int, str]] = {}
-        n_demo_frames = 4
+        n_demo_frames = N_DEMO_FRAMES
         for path in args.policy_paths:
             checkpoint = resolve_checkpoint(path)
             config = read_config(checkpoint)
@@ -106,9 +107,9 @@ class EvaluationPlan:
             for task, variations in tasks.items():
                 for variation in variations:
                     for episode in range(args.episodes_per_variation):
-                        seed, demo_seed = episode_seeds(args.seed, variation, episode)
+                        seeds = episode_seeds(episode_seed(args.seed, episode), variation)
                         plan.episodes.append(EpisodeSpec(
-                            agent_index, task, variation, episode, seed, demo_seed,
+                            agent_index, task, variation, episode, seeds.agent, seeds.demo,
                             record=record and agent_index in recorded_agents and episode < args.rerun_episodes,
                         ))
         return plan
@@ -119,8 +120,7 @@ class EvaluationPlan:
             "agents": [agent.__dict__ | {"image_hw": list(agent.image_hw)} for agent in self.agents],
             "episodes_per_variation": self.episodes_per_variation,
             "seed": self.seed,
-            "seed_rule": "agent instance = seed + 100000 * variation + episode; demonstrator = seed + 100000 * "
-            "variation + 50000 + 10 * episode (+1, +2, ... if its expert fails)",
+            "seed_rule": SEED_RULE,
             "demo_source": self.demo_source.dataset or f"fresh {self.demo_source.robot} expert demonstrations",
             "agent_robot": "panda",
             "max_steps": self.max_steps or "task horizon",

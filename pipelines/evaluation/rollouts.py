@@ -1,11 +1,16 @@
 """One evaluation episode: a demonstration of the variation, a fresh agent instance, a rollout to the horizon.
 
-Seeds (see :func:`episode_seeds`): episode ``e`` of ``variation`` puts the agent in instance
-``base + 100000 * variation + e`` and asks the demonstrator for instance ``base + 100000 * variation + 50000 +
-10 * e`` (the next seeds if its expert fails there), so the demonstration always shows another instance than
-the one the agent faces. Everything an episode does depends only on its seeds (torch's generator is re-seeded
-per episode), so results do not depend on the number of workers or on which worker runs an episode. The
-default base, 10^9, is far from the seeds `mosaic-data collect` uses for training data (base 0).
+Seeds (one rule for both front-ends, :mod:`.seeds`): episode ``e`` of ``variation`` from base seed ``B``
+(``--seed``) has the episode seed ``s = B + e``, what ``lerobot-eval --seed B`` resets its environments with;
+the agent faces instance ``s + 100000 * variation`` and the demonstrator's expert shows instance
+``s + 100000 * variation + 50000`` (``+ 5000`` per retry if its expert fails there), so the demonstration always
+shows another instance than the one the agent faces. The demonstration is made by the same source and frame
+picking as in ``lerobot-eval --env.type=mosaic`` (:class:`.demo_sources.ExpertDemoSource`,
+:func:`.demo_sources.policy_frames`), so ``mosaic-eval --seed B`` and ``lerobot-eval --seed B`` run the same
+episodes and give the same numbers (mind their different default seeds: pass the same ``--seed`` to both).
+Everything an episode does depends only on its seeds (torch's generator is re-seeded per episode), so results
+do not depend on the number of workers or on which worker runs an episode. The default base, 10^9, is far from
+the seeds `mosaic-data collect` uses for training data (base 0).
 
 Every episode also records which variation the agent *achieved* (:class:`GoalTracker`), for the confusion matrix.
 """
@@ -23,24 +28,11 @@ from mosaic_data.envs import MosaicGymEnv
 from mosaic_data.tasks import get_task_class
 
 from .agents import Agent, AgentSpec, build_agent
-from .demo_sources import DemoSourceSpec, build_demo_source
+from .demo_sources import DemoSourceSpec, build_demo_source, policy_frames
 from .env_cache import EnvCache
-from .options import EVAL_BASE_SEED
 
 if TYPE_CHECKING:
     from mosaic_data.tasks.base import MosaicTaskEnv
-
-
-SEED_STRIDE_VARIATION = 100_000
-DEMO_SEED_OFFSET = 50_000
-DEMO_SEED_STRIDE = 10
-MAX_EPISODES_PER_VARIATION = DEMO_SEED_OFFSET // DEMO_SEED_STRIDE
-
-
-def episode_seeds(base_seed: int, variation: int, episode: int) -> tuple[int, int]:
-    """(agent instance seed, first demonstrator seed) of one evaluation episode."""
-    start = base_seed + SEED_STRIDE_VARIATION * variation
-    return start + episode, start + DEMO_SEED_OFFSET + DEMO_SEED_STRIDE * episode
 
 
 @dataclass(frozen=True)
@@ -220,9 +212,4 @@ class RolloutWorker:
 def _frame_picker(agent: Agent):
     """The demonstration frames a policy conditions on (first, last, middle-segment centres); None (all frames)
     for an agent that takes no demonstration or a policy that does not say how many frames it uses."""
-    n_frames = getattr(agent.policy.config, "n_demo_frames", None) if agent.spec.needs_demo else None
-    if n_frames is None:
-        return None
-    from mosaic_policy.paired_sampling import demo_frame_indices
-
-    return lambda length: demo_frame_indices(length, n_frames)
+    return policy_frames(getattr(agent.policy.config, "n_demo_frames", None) if agent.spec.needs_demo else None)

@@ -26,7 +26,7 @@ def policy_features(height: int, width: int) -> dict:
 def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH) -> Path:
     """An untrained two-layer MOSAIC at ``height`` x ``width`` with action statistics over the workspace."""
     from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
-    from mosaic_policy.modeling_mosaic import MosaicPolicy
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
     config = MosaicConfig(
         device="cpu",

@@ -11,8 +11,9 @@ from pipelines.evaluation.agents import AgentSpec
 from pipelines.evaluation.confusion import NONE_COLUMN, heat_map_path, write_heat_maps
 from pipelines.evaluation.demo_sources import DemoSourceSpec
 from pipelines.evaluation.report import print_table, summarize, write_reports
-from pipelines.evaluation.rollouts import EpisodeSpec, episode_seeds
+from pipelines.evaluation.rollouts import EpisodeSpec
 from pipelines.evaluation.runner import run_episodes
+from pipelines.evaluation.seeds import episode_seeds
 
 WRONG = 3  # "pull the right door open": the blind expert does it whatever the episode's variation
 
@@ -20,8 +21,9 @@ WRONG = 3  # "pull the right door open": the blind expert does it whatever the e
 @pytest.fixture(scope="module")
 def door_results():
     agents = [AgentSpec("expert", "expert"), AgentSpec("expert", "blind expert", expert_variation=WRONG)]
+    seeds = {variation: episode_seeds(7, variation) for variation in (0, WRONG)}
     specs = [
-        EpisodeSpec(agent, "door", variation, 0, *episode_seeds(7, variation, 0))
+        EpisodeSpec(agent, "door", variation, 0, seeds[variation].agent, seeds[variation].demo)
         for agent in range(len(agents)) for variation in (0, WRONG)
     ]
     results = run_episodes(specs, agents, DemoSourceSpec(), workers=1)

@@ -84,9 +84,25 @@ def door_datasets(tmp_path_factory):
     return agent, demo
 
 
-def small_config(height=HEIGHT, width=WIDTH, **overrides):
-    """A small MOSAIC config for fast CPU tests (the paper's defaults are tested separately)."""
-    from mosaic_policy import MosaicConfig
+SMALL_OPTIONS: dict[str, dict] = {
+    "mosaic": dict(
+        n_attention_layers=2, n_attention_heads=2, contrastive_dim=16, contrastive_hidden_dim=32, attention_dropout=0.0
+    ),
+    "tosil": dict(n_attention_layers=2, n_attention_heads=2, attention_dropout=0.0, point_horizon=2),
+    "lstm_osil": dict(lstm_hidden_dim=32, lstm_dropout=0.0),
+    "mlp_osil": dict(context_hidden_dim=32, context_dim=16),
+    "daml": dict(policy_hidden_dim=32, adapt_loss_channels=8),
+}
+"""Small sizes of each policy type's own options for fast CPU tests."""
+
+POLICY_TYPES = list(SMALL_OPTIONS)
+
+
+def small_config(height=HEIGHT, width=WIDTH, policy_type="mosaic", **overrides):
+    """A small config of ``policy_type`` for fast CPU tests (the paper's defaults are tested separately)."""
+    from lerobot.configs import PreTrainedConfig
+
+    import mosaic_policy  # noqa: F401  (registers the types)
 
     options = dict(
         device="cpu",
@@ -98,17 +114,13 @@ def small_config(height=HEIGHT, width=WIDTH, **overrides):
         train_obs_frames=3,
         frame_stride=2,
         action_chunk=2,
-        n_attention_layers=2,
-        n_attention_heads=2,
         embed_dim=32,
         head_hidden_dim=32,
-        contrastive_dim=16,
-        contrastive_hidden_dim=32,
-        attention_dropout=0.0,
         push_to_hub=False,
+        **SMALL_OPTIONS[policy_type],
     )
     options.update(overrides)
-    return MosaicConfig(**options)
+    return PreTrainedConfig.get_choice_class(policy_type)(**options)
 
 
 def random_batch(config, batch_size=4, height=HEIGHT, width=WIDTH, seed=0):

@@ -5,16 +5,16 @@ import math
 import pytest
 import torch
 
-from mosaic_policy.attention import NonLocalAttentionStack, spatio_temporal_encoding
-from mosaic_policy.contrastive import (
+from mosaic_policy.common.attention import NonLocalAttentionStack, spatio_temporal_encoding
+from mosaic_policy.mosaic.contrastive import (
     TemporalContrastiveModule,
     ema_momentum,
     ema_update,
     make_target,
     positive_indices,
 )
-from mosaic_policy.discretized_logistic import DiscretizedLogisticMixture
-from mosaic_policy.resnet_trunk import ResNetTrunk
+from mosaic_policy.common.discretized_logistic import DiscretizedLogisticMixture
+from mosaic_policy.common.resnet_trunk import ResNetTrunk
 
 
 def test_trunk_gives_256x7x12_features_at_100x180():

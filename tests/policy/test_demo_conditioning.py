@@ -3,7 +3,7 @@
 import torch
 from conftest import HEIGHT, IMAGE_KEY, WIDTH, small_config
 
-from mosaic_policy.modeling_mosaic import MosaicPolicy
+from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
 
 def _demo(variation: int, n: int, generator: torch.Generator) -> torch.Tensor:

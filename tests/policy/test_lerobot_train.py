@@ -1,5 +1,6 @@
 """A real `lerobot-train --policy.type=mosaic` run on tiny datasets, found through LeRobot's plugin discovery."""
 
+import json
 import os
 import subprocess
 import sys
@@ -66,7 +67,7 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     assert "[robosuite" not in result.stdout + result.stderr  # training does not load the simulator
 
     from lerobot.policies.factory import make_pre_post_processors
-    from mosaic_policy.modeling_mosaic import MosaicPolicy
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
     checkpoint = output / "checkpoints" / "last" / "pretrained_model"
     policy = MosaicPolicy.from_pretrained(checkpoint)
@@ -75,6 +76,8 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     assert saved.keys() == state.keys()
     assert all(torch.equal(saved[k], state[k]) for k in saved)
     assert int(policy.ema_step) == 2  # update() ran after each optimizer step
+    train_config = json.loads((output / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
+    assert train_config["scheduler"]["type"] == "run_progress"  # the preset that tells the policy the run's length
     assert policy.config.ema_total_steps is None  # the schedule's length is each run's --steps, never saved
     assert policy.config.demo_root is None  # no machine-local path in the policy's config.json
     assert str(demo_root) not in (checkpoint / "config.json").read_text()
@@ -115,27 +118,36 @@ def test_lerobot_train_without_demo_dataset_fails_clearly(door_datasets, tmp_pat
     assert "demonstrator dataset 'mosaic/door_sawyer' not found" in result.stdout + result.stderr
 
 
-@pytest.mark.parametrize("resume", [False, True])
-def test_fine_tuning_restarts_the_ema_schedule_and_resume_stretches_it(door_datasets, tmp_path, monkeypatch, resume):
-    """A 1000-step checkpoint loaded to train again: fine-tuning starts at the base momentum, not at 1."""
+def test_the_ema_schedule_follows_the_run_lerobot_train_reports_fine_tuning_restarts_it_resume_continues_it():
+    """lerobot-train tells the policy's scheduler preset its --steps; the EMA momentum reads the run's progress from
+    it (no command line parsing). A fine-tuning run builds a new scheduler: the schedule restarts at the base
+    momentum instead of the finished schedule's 1 (which froze the target encoder); --resume restores the
+    scheduler's step count and the schedule ends at the new --steps."""
     from conftest import small_config
-    from lerobot.datasets import LeRobotDatasetMetadata
 
-    from mosaic_policy.contrastive import ema_momentum
-    from mosaic_policy.modeling_mosaic import MosaicPolicy
+    from mosaic_policy.common.run_progress import RunProgressSchedulerConfig, run_progress
+    from mosaic_policy.mosaic.contrastive import ema_momentum
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
-    agent_root, demo_root = door_datasets
-    trained = MosaicPolicy(small_config())
-    trained.ema_step.fill_(1000)
-    trained.save_pretrained(tmp_path / "ckpt")
-    argv = ["lerobot-train", "--policy.path=ckpt", "--steps=3000"] + (["--resume=true"] if resume else [])
-    monkeypatch.setattr(sys, "argv", argv)
-    config = small_config(demo_repo_id="mosaic/door_sawyer", demo_root=str(demo_root), demo_loader_threads=0)
-    meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
-    policy = MosaicPolicy.from_pretrained(tmp_path / "ckpt", config=config, dataset_meta=meta)
-    assert policy.ema_total_steps == 3000
-    assert int(policy.ema_step) == (1000 if resume else 0)
-    momentum = ema_momentum(int(policy.ema_step), policy.ema_total_steps, config.ema_momentum)
-    assert momentum < 1.0 and (momentum > config.ema_momentum if resume else momentum == config.ema_momentum)
-    # the old behaviour: the schedule saved with the checkpoint had ended, momentum 1 froze the target
-    assert ema_momentum(1000, 1000, config.ema_momentum) == 1.0
+    config = small_config()
+    policy = MosaicPolicy(config)
+    preset = config.get_scheduler_preset()
+    assert isinstance(preset, RunProgressSchedulerConfig) and preset.type == "run_progress"
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr)
+    first_run = preset.build(optimizer, 1000)
+    for _ in range(1000):
+        optimizer.step()
+        first_run.step()
+    assert run_progress() == (1000, 1000)
+    assert policy.ema_schedule() == (999, 1000)
+    assert optimizer.param_groups[0]["lr"] == config.optimizer_lr  # the preset keeps the learning rate constant
+
+    fine_tuning = preset.build(torch.optim.Adam(policy.get_optim_params()), 3000)
+    assert policy.ema_schedule() == (0, 3000)
+    assert ema_momentum(*policy.ema_schedule(), config.ema_momentum) == config.ema_momentum
+
+    resumed = preset.build(torch.optim.Adam(policy.get_optim_params()), 3000)
+    resumed.load_state_dict(first_run.state_dict())  # what lerobot-train's load_training_state does
+    assert policy.ema_schedule() == (999, 3000)
+    assert config.ema_momentum < ema_momentum(*policy.ema_schedule(), config.ema_momentum) < 1.0
+    del fine_tuning, resumed, first_run

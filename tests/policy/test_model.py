@@ -5,7 +5,7 @@ import torch
 from conftest import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
 
 from mosaic_policy import MosaicConfig
-from mosaic_policy.modeling_mosaic import MosaicPolicy
+from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +96,7 @@ def test_select_action_uses_the_cached_demo_and_matches_the_training_path(policy
     frames = torch.rand(2, 3, 3, HEIGHT, WIDTH)
     state = torch.randn(2, 3, 10)
     with torch.no_grad():
-        from mosaic_policy.paired_sampling import demo_frame_indices
+        from mosaic_policy.common.paired_sampling import demo_frame_indices
 
         demo_frames = (video[demo_frame_indices(30, 4)].permute(0, 3, 1, 2).float() / 255).expand(2, -1, -1, -1, -1)
         encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo_frames, frames)
@@ -166,7 +166,7 @@ def test_loss_is_averaged_per_variation_then_per_task():
     drawer = [v.description for v in VARIATIONS["drawer"]]
     policy = MosaicPolicy(small_config(contrastive="off", augment=False))
     batch = {"task": [door[0], door[0], door[1], drawer[0]]}
-    weights = policy._sample_weights(batch, 4, "cpu")
+    weights = policy.conditioning.sample_weights(batch, 4, "cpu")
     # two tasks (1/2 each); door has two variations (1/4 each); door[0] has two samples (1/8 each)
     torch.testing.assert_close(weights, torch.tensor([1 / 8, 1 / 8, 1 / 4, 1 / 2]))
 
@@ -176,7 +176,33 @@ def test_loss_is_averaged_per_variation():
     batch = random_batch(policy.config, batch_size=4)
     batch["task"] = ["a", "a", "a", "b"]
     per_sample, _ = policy.forward(batch, reduction="none")
-    weights = policy._sample_weights(batch, 4, "cpu")
+    weights = policy.conditioning.sample_weights(batch, 4, "cpu")
     torch.testing.assert_close(weights, torch.tensor([1 / 6, 1 / 6, 1 / 6, 1 / 2]))
     loss, _ = policy.forward(batch)
     torch.testing.assert_close(loss, per_sample.mean(), rtol=1e-5, atol=1e-5)
+
+
+def test_the_full_attention_pattern_acts_and_acting_matches_training_frame_by_frame():
+    """attention_pattern=full (the ablation) used to train but refuse to act. Acting remembers the last query
+    frames; frame k's action distribution equals what training computes for frame k of a sample (causal: later
+    frames of the sample do not change it)."""
+    torch.manual_seed(0)
+    policy = MosaicPolicy(small_config(attention_pattern="full", contrastive="off", augment=False)).eval()
+    config = policy.config
+    batch = random_batch(config, batch_size=1)
+    demo, obs = batch["demo_frames"], batch[IMAGE_KEY]
+    with torch.no_grad():
+        encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo, obs)
+        trained = policy.model.action_distribution(policy.model.frame_embeddings(encoded["obs_post"]), None)
+        policy.reset()
+        policy.set_demo(demo[0])
+        for k in range(config.train_obs_frames):
+            acting = policy.chunk_distribution(obs[:, k], None, policy._context)
+            torch.testing.assert_close(acting.means, trained.means[:, k], atol=1e-4, rtol=1e-4)
+        perturbed = obs.clone()
+        perturbed[:, -1] = torch.rand_like(perturbed[:, -1])
+        again = policy.model.encode(policy.model.trunk, policy.model.attention, demo, perturbed)["obs_post"]
+        torch.testing.assert_close(again[:, :, :-1], encoded["obs_post"][:, :, :-1])
+    policy.reset()
+    policy.set_demo(demo[0])
+    assert policy.select_action({IMAGE_KEY: obs[:, 0]}).shape == (1, 7)

@@ -6,8 +6,8 @@ import torch
 from conftest import IMAGE_KEY, read_variation_rank, variation_description, write_dataset
 
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
-from mosaic_policy.modeling_mosaic import MosaicPolicy
-from mosaic_policy.paired_sampling import DemoDatasetError, PairedDemoSampler, demo_frame_indices
+from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
+from mosaic_policy.common.paired_sampling import DemoDatasetError, PairedDemoSampler, demo_frame_indices
 
 
 def test_demo_frames_are_first_last_and_one_per_middle_segment():
@@ -71,8 +71,15 @@ def test_demo_dataset_lacking_a_variation_is_a_clear_error(door_datasets, tmp_pa
     agent_root, _ = door_datasets
     partial = write_dataset(tmp_path / "partial", "mosaic/door_sawyer", [0, 1, 2], episodes_per_variation=1, length=4)
     meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    # a known selection is checked up front
     with pytest.raises(DemoDatasetError, match=r"no episode of 1 variation\(s\).*open door 1 right"):
-        PairedDemoSampler("mosaic/door_sawyer", partial, IMAGE_KEY, 4, agent_meta=meta)
+        PairedDemoSampler("mosaic/door_sawyer", partial, IMAGE_KEY, 4, agent_meta=meta, agent_episodes=[0, 1, 2, 3])
+    # inside lerobot-train the run's episodes are learnt from the batches: the first uncovered one fails
+    sampler = PairedDemoSampler("mosaic/door_sawyer", partial, IMAGE_KEY, 4, agent_meta=meta, threads=0)
+    tasks = [t[0] for t in meta.episodes["tasks"]]
+    sampler.sample(tasks[:3], [0, 1, 2])  # variations 0-2 are covered
+    with pytest.raises(DemoDatasetError, match="no episode of variation 'open door 1 right'; collect it"):
+        sampler.sample(tasks[:4], [0, 1, 2, 3])
 
 
 def test_demo_dataset_of_another_image_size_is_a_clear_error(door_datasets, tmp_path):
@@ -125,3 +132,19 @@ def test_a_damaged_demonstrator_video_names_its_file_in_training(tmp_path, damag
     message = str(caught.value)
     assert str(videos[0]) in message and f"mosaic-data validate {demo}" in message and "\n" not in message
     sampler.close()
+
+
+def test_inside_lerobot_train_the_demonstrator_side_follows_the_episodes_the_run_trains_on(tmp_path):
+    """lerobot-train does not tell a policy its --dataset.episodes: the sampler learns them from the batches and
+    never pairs a sample with an instance the run does not train on."""
+    agent_root = write_dataset(tmp_path / "agent", "mosaic/door_panda", [0, 1], episodes_per_variation=3, length=6)
+    demo_root = write_dataset(tmp_path / "demo", "mosaic/door_sawyer", [0, 1], episodes_per_variation=3, length=6)
+    agent_meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
+    sampler = PairedDemoSampler("mosaic/door_sawyer", demo_root, IMAGE_KEY, 4, agent_meta=agent_meta, threads=0)
+    tasks = [t[0] for t in agent_meta.episodes["tasks"]]
+    trained_on = [0, 1, 2, 3]  # ranks 0 and 1 of both variations, as --dataset.episodes=[0,1,2,3] would give
+    seen = set()
+    for _ in range(6):
+        frames = sampler.sample([tasks[e] for e in trained_on], trained_on)
+        seen |= {read_variation_rank(frames[i, 0])[1] for i in range(len(trained_on))}
+    assert seen == {0, 1}  # rank 2 (episodes 4, 5) is never shown

@@ -11,8 +11,8 @@ import pytest
 import torch
 from conftest import HEIGHT, IMAGE_KEY, WIDTH, small_config
 
-from mosaic_policy.model_card import eval_task_option
-from mosaic_policy.modeling_mosaic import MosaicPolicy
+from mosaic_policy.common.model_card import eval_task_option
+from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
 
 def _strings(value):

@@ -1,5 +1,6 @@
-"""LeRobot plugin: importing it registers the MOSAIC policy (`lerobot-train --policy.type=mosaic`)."""
+"""LeRobot plugin: importing it registers every policy of the mosaic toolkit (`lerobot-train --policy.type=X`
+with X in mosaic, tosil, lstm_osil, mlp_osil, daml)."""
 
-from mosaic_policy import MosaicConfig
+from mosaic_policy import POLICY_TYPES, DamlConfig, LstmOsilConfig, MlpOsilConfig, MosaicConfig, TosilConfig
 
-__all__ = ["MosaicConfig"]
+__all__ = ["POLICY_TYPES", "DamlConfig", "LstmOsilConfig", "MlpOsilConfig", "MosaicConfig", "TosilConfig"]

@@ -11,9 +11,12 @@ the training step still had to wait for them.
 agent and demonstrator episodes with the same rank within their variation show the same scene instance; a
 demonstrator episode of another rank is chosen whenever the variation has one.
 
-Data fractions: when training uses a subset of the agent episodes (lerobot-train's `--dataset.episodes`, the
-paper's 25/50/75% runs), the demonstrator side is restricted to the same instances (the same ranks within
-each variation), so both robots see the same share of the data.
+Data fractions: when training uses a subset of the agent episodes (lerobot-train's `--dataset.episodes` or
+`--dataset.eval_split`, the paper's 25/50/75% runs), the demonstrator side is restricted to the same instances
+(the same ranks within each variation), so both robots see the same share of the data. A policy is not told
+which episodes the run trains on, so the sampler learns them from the batches: a variation's demonstrations
+come from the instances of the agent episodes it has been asked to pair so far (all of the run's, after the first
+batches), never from an instance the run does not train on. `agent_episodes` fixes the set up front instead.
 """
 
 import threading
@@ -115,6 +118,8 @@ class PairedDemoSampler:
 
         self.agent_rank: dict[int, int] = {}
         self.agent_task_frequency: dict[str, float] = {}
+        self.demo_episodes_by_task = self.episodes_by_task  # every demonstration of a variation
+        self._restricted = False  # episodes_by_task holds only the instances seen (True once agent episodes are known)
         if agent_meta is not None:
             self._check_agent(agent_meta, agent_episodes)
 
@@ -159,7 +164,9 @@ class PairedDemoSampler:
             )
         agent_tasks = [all_agent_tasks[e] for e in selected]
         missing = sorted(set(agent_tasks) - set(self.episodes_by_task))
-        if missing:
+        # Up front only for a known selection: a run may train on a subset (--dataset.episodes) that the
+        # demonstrator covers; otherwise the first batch of an uncovered variation fails with the same fix.
+        if missing and agent_episodes is not None:
             shown = "; ".join(repr(t) for t in missing[:3]) + (" ..." if len(missing) > 3 else "")
             raise DemoDatasetError(
                 f"demonstrator dataset {self.repo_id!r} has no episode of {len(missing)} variation(s) of the "
@@ -167,22 +174,35 @@ class PairedDemoSampler:
                 "(--dataset.episodes=[...])."
             )
         self.agent_rank = {e: all_ranks[e] for e in selected}
-        if agent_episodes is not None:  # the same instances on the demonstrator side
-            ranks_by_task: dict[str, set[int]] = {}
-            for e in selected:
-                ranks_by_task.setdefault(all_agent_tasks[e], set()).add(all_ranks[e])
-            restricted = {
-                task: [(ep, rank) for ep, rank in self.episodes_by_task[task] if rank in ranks]
-                for task, ranks in ranks_by_task.items()
-            }
-            # a variation whose chosen instances the demonstrator lacks keeps what it has rather than nothing
-            self.episodes_by_task = {task: eps or self.episodes_by_task[task] for task, eps in restricted.items()}
+        self._agent_task = {e: all_agent_tasks[e] for e in selected}
+        self._seen_ranks: dict[str, set[int]] = {}
+        self._restricted = True
+        self.episodes_by_task = {}
+        if agent_episodes is not None:  # the run's episodes are known: the same instances on the demonstrator side
+            self.observe(list(selected))
         all_lengths = list(agent_meta.episodes["length"])
         lengths = Counter()
         for e in selected:
             lengths[all_agent_tasks[e]] += all_lengths[e]
         total = sum(lengths.values())
         self.agent_task_frequency = {task: n / total for task, n in lengths.items()}
+
+    def observe(self, agent_episodes: list[int]) -> None:
+        """Admit the instances of these agent episodes to their variations' demonstrator pools."""
+        if not self._restricted:
+            return
+        changed = set()
+        for episode in agent_episodes:
+            task, rank = self._agent_task.get(int(episode)), self.agent_rank.get(int(episode))
+            if task is None or rank in self._seen_ranks.setdefault(task, set()):
+                continue
+            self._seen_ranks[task].add(rank)
+            changed.add(task)
+        for task in changed:
+            ranks = self._seen_ranks[task]
+            pool = [(ep, rank) for ep, rank in self.demo_episodes_by_task.get(task, []) if rank in ranks]
+            # a variation whose instances the demonstrator lacks keeps what it has rather than nothing
+            self.episodes_by_task[task] = pool or self.demo_episodes_by_task.get(task, [])
 
     # -- decoding -------------------------------------------------------------------------------------------
 
@@ -258,6 +278,8 @@ class PairedDemoSampler:
             return
         frequency = self.agent_task_frequency or {t: 1 / len(self.episodes_by_task) for t in self.episodes_by_task}
         for task, share in frequency.items():
+            if not self.episodes_by_task.get(task):  # no instance of this variation seen yet
+                continue
             target = max(1, int(np.ceil(self.prefetch_batches * self._batch_size * share)))
             queue = self._queues.setdefault(task, deque())
             while len(queue) < target:
@@ -266,6 +288,10 @@ class PairedDemoSampler:
     def sample(self, tasks: list[str], agent_episodes: list[int] | None = None) -> Tensor:
         """(B, n_frames, 3, H, W) uint8 demonstrator frames, one demonstration per agent sample."""
         waited_before = self.wait_s
+        if agent_episodes is not None:
+            self.observe(agent_episodes)
+        elif self._restricted and not self.episodes_by_task:  # no episode indices: every agent instance counts
+            self.observe(list(self._agent_task))
         if self._batch_size is None:
             self._batch_size = len(tasks)
             self._top_up()

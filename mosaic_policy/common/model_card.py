@@ -1,11 +1,11 @@
-"""The model card of a pushed MOSAIC policy (``README.md`` of its Hub repo).
+"""The model card of a pushed demo-conditioned policy (``README.md`` of its Hub repo): MOSAIC or a baseline.
 
 LeRobot's generic card tells a reader to run the policy with ``lerobot-rollout --robot.type=<robot>`` on a
-real robot and says nothing of what MOSAIC needs: the ``lerobot_policy_mosaic`` plugin (without it LeRobot
-does not know ``type: mosaic``), and one demonstration video per episode. This card says how to install the
-plugin, what the demonstration input is, and how to train and evaluate the policy in the simulated suite
-(``mosaic-eval``, ``lerobot-eval --env.type=mosaic``). LeRobot's ``push_model_to_hub`` calls
-:meth:`MosaicPolicy.generate_model_card`, which renders :data:`MODEL_CARD_TEMPLATE` here.
+real robot and says nothing of what these policies need: the ``lerobot_policy_mosaic`` plugin (without it
+LeRobot does not know ``type: mosaic``, ``tosil``, ...), and one demonstration video per episode. This card says
+how to install the plugin, what the demonstration input is, and how to train and evaluate the policy in the
+simulated suite (``mosaic-eval``, ``lerobot-eval --env.type=mosaic``). LeRobot's ``push_model_to_hub`` calls
+the policy's ``generate_model_card``, which renders :data:`MODEL_CARD_TEMPLATE` here.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from huggingface_hub import ModelCard
 
-    from .configuration_mosaic import MosaicConfig
+    from .configuration_demo import DemoConditionedConfig
 
 PAPER_URL = "https://arxiv.org/abs/2110.05455"
 
@@ -27,16 +27,16 @@ MODEL_CARD_TEMPLATE = """---
 {{ card_data }}
 ---
 
-# MOSAIC one-shot imitation policy{% if policy_repo_id %}: {{ policy_repo_id }}{% endif %}
+# {{ policy_name }} one-shot imitation policy{% if policy_repo_id %}: {{ policy_repo_id }}{% endif %}
 
-A [MOSAIC]({{ paper_url }}) policy (*Towards More Generalizable One-shot Visual Imitation Learning*) trained
+{% if policy_type == "mosaic" %}A [MOSAIC]({{ paper_url }}) policy (*Towards More Generalizable One-shot Visual Imitation Learning*){% else %}A {{ policy_name }} policy, one of the baselines of [MOSAIC]({{ paper_url }})'s Table I,{% endif %} trained
 with [LeRobot](https://github.com/huggingface/lerobot) and the `mosaic` toolkit. It acts in the simulated
 MOSAIC task suite (robosuite + MuJoCo): a Panda arm does the task variation that **one demonstration video**
 shows, a video of a Sawyer arm doing that variation in another scene instance.
 
 ## Install
 
-The policy type `mosaic` is not part of LeRobot: it comes with the LeRobot plugin `lerobot_policy_mosaic`
+The policy type `{{ policy_type }}` is not part of LeRobot: it comes with the LeRobot plugin `lerobot_policy_mosaic`
 of the `mosaic` toolkit, which LeRobot imports at start-up. In a checkout of the toolkit:
 
 ```bash
@@ -44,7 +44,7 @@ of the `mosaic` toolkit, which LeRobot imports at start-up. In a checkout of the
 ```
 
 (`bash scripts/setup.sh` does the same in a fresh virtual environment). Without the plugin, loading this
-policy fails with an unknown policy type `mosaic`.
+policy fails with an unknown policy type `{{ policy_type }}`.
 
 ## The demonstration input
 
@@ -54,9 +54,9 @@ camera and size as the agent's observations (first frame, last frame and the cen
 segment; a longer video is subsampled that way).
 
 ```python
-from mosaic_policy import MosaicPolicy
+from mosaic_policy import policy_class
 
-policy = MosaicPolicy.from_pretrained("{{ policy_path }}")
+policy = policy_class("{{ policy_type }}").from_pretrained("{{ policy_path }}")
 policy.reset()
 policy.set_demo(video)          # (N, H, W, 3) uint8 or (N, 3, H, W) float in [0, 1]: once per episode
 action = policy.select_action(batch)   # the current frame under "{{ camera_key }}", every control step
@@ -83,11 +83,11 @@ An agent (Panda) dataset paired with the demonstrator (Sawyer) dataset of the sa
 by `mosaic-data collect`:
 
 ```bash
-lerobot-train --policy.type=mosaic --dataset.repo_id={{ agent_repo_id }} \\
+lerobot-train --policy.type={{ policy_type }} --dataset.repo_id={{ agent_repo_id }} \\
     --policy.demo_repo_id={{ demo_repo_id }} --batch_size=30 --steps=20000
 ```
 
-`--policy.path={{ policy_path }}` instead of `--policy.type=mosaic` fine-tunes this policy. The demonstrator
+`--policy.path={{ policy_path }}` instead of `--policy.type={{ policy_type }}` fine-tunes this policy. The demonstrator
 dataset is read from LeRobot's cache (`$HF_LEROBOT_HOME/<demo_repo_id>`) unless `--policy.demo_root` gives
 its folder; the saved config keeps no machine-local path.
 {% if input_features or output_features %}
@@ -145,17 +145,20 @@ def eval_task_option(variations: list[str]) -> str:
 
 
 def build_model_card(
-    config: MosaicConfig,
+    config: DemoConditionedConfig,
     image_hw: tuple[int, int],
     dataset_repo_id: str | None,
     card_context: dict[str, Any],
     license: str | None = None,
     tags: list[str] | None = None,
 ) -> ModelCard:
-    """The card of a MOSAIC policy; ``card_context`` holds LeRobot's template values (training, dataset, ...)."""
+    """The card of a demo-conditioned policy; ``card_context`` holds LeRobot's template values (training, dataset, ...)."""
     from huggingface_hub import ModelCard, ModelCardData
 
+    from mosaic_data.constants import OBS_DEMO_KEY
     from mosaic_data.tasks.spec import task_of_variation
+
+    from .. import POLICY_TYPES
 
     dataset = card_context.get("dataset") or None
     variations = list(dataset["tasks"]) if dataset else []
@@ -164,14 +167,16 @@ def build_model_card(
         license=license or "apache-2.0",
         library_name="lerobot",
         pipeline_tag="robotics",
-        tags=sorted(set(tags or []) | {"robotics", "lerobot", "mosaic", "one-shot-imitation", "robosuite"}),
-        model_name="mosaic",
+        tags=sorted(set(tags or []) | {"robotics", "lerobot", "mosaic", config.type, "one-shot-imitation", "robosuite"}),
+        model_name=config.type,
         datasets=datasets or None,
     )
     table = task_of_variation()
     context = {
         **card_context,
         "paper_url": PAPER_URL,
+        "policy_type": config.type,
+        "policy_name": POLICY_TYPES.get(config.type, config.type),
         "install_command": INSTALL_COMMAND,
         "policy_repo_id": config.repo_id,
         "policy_path": config.repo_id or "<hf_user>/<policy_repo_id>",
@@ -182,7 +187,7 @@ def build_model_card(
         "image_width": image_hw[1],
         "n_demo_frames": config.n_demo_frames,
         "action_chunk": config.action_chunk,
-        "demo_key": "observation.demo",
+        "demo_key": OBS_DEMO_KEY,
         "eval_task": eval_task_option(variations),
         "tasks": sorted({table[v] for v in variations if v in table}),
     }

@@ -8,6 +8,11 @@ same temporal code ("the current frame") and its output does not depend on how m
 in the batch: 7 frames in training and 1 at inference compute the same thing per frame (the original code's
 encodings differed between the two). The demo stream is updated by every layer and its keys/values at each
 layer depend on the demo only, so they can be computed once per episode and cached.
+
+Full pattern (T-OSIL, and MOSAIC's attention ablation): the demo stream is the same, and observation frame t also
+attends to the tokens of observation frames 0..t of its sample (causal: a frame never sees a later one). Acting,
+the policy keeps the trunk features of its last frames and recomputes the observation stream over them; the demo
+keys/values are cached as above.
 """
 
 import math
@@ -122,14 +127,21 @@ class NonLocalAttentionLayer(nn.Module):
         out = self._residual(x, self._merge(attended, x)).movedim(-1, 1)
         return out, (weights if return_weights else None)
 
-    def forward_full(self, demo: Tensor, obs: Tensor) -> tuple[Tensor, Tensor]:
-        """Baseline: every token of every frame attends to every token (T-OSIL style)."""
-        x = torch.cat([demo, obs], dim=2).movedim(1, -1)
-        q, k, v = (t.flatten(2, 3) for t in self._qkv(x))
-        attended, _ = self._attend(q, k, v, return_weights=False)
-        b, n_h, _, dh = attended.shape
-        out = self._residual(x, self._merge(attended.reshape(b, n_h, x.shape[1], -1, dh), x)).movedim(-1, 1)
-        return out[:, :, : demo.shape[2]], out[:, :, demo.shape[2] :]
+    def forward_obs_causal(self, obs: Tensor, demo_k: Tensor, demo_v: Tensor) -> Tensor:
+        """Full spatio-temporal pattern (T-OSIL): observation frame t attends to every demo token and to every
+        token of observation frames 0..t, never to a later frame (training sees 7 frames, acting only the past)."""
+        x = obs.movedim(1, -1)
+        q, k, v = self._qkv(x)
+        b, n_h, t, hw, dh = q.shape
+        keys = torch.cat([demo_k, k.flatten(2, 3)], dim=2)
+        values = torch.cat([demo_v, v.flatten(2, 3)], dim=2)
+        query_frame = torch.arange(t, device=obs.device).repeat_interleave(hw)
+        key_frame = torch.cat([torch.full((demo_k.shape[2],), -1, device=obs.device), query_frame])
+        allowed = key_frame[None, :] <= query_frame[:, None]  # (T*hw, D*hw + T*hw)
+        attended = F.scaled_dot_product_attention(
+            q.flatten(2, 3), keys, values, attn_mask=allowed, scale=1.0 / self.temperature
+        )
+        return self._residual(x, self._merge(attended.reshape(b, n_h, t, hw, dh), x)).movedim(-1, 1)
 
 
 class NonLocalAttentionStack(nn.Module):
@@ -161,11 +173,15 @@ class NonLocalAttentionStack(nn.Module):
                 weights.append(w)
         return obs, weights
 
+    def attend_obs_causal(self, obs: Tensor, cache: list[tuple[Tensor, Tensor]]) -> Tensor:
+        """The full (T-OSIL) pattern for observation frames (B, C, T, h, w), causal in time."""
+        for layer, (k, v) in zip(self.layers, cache, strict=True):
+            obs = layer.forward_obs_causal(obs, k, v)
+        return obs
+
     def forward(self, demo: Tensor, obs: Tensor, return_weights: bool = False) -> tuple[Tensor, Tensor, list[Tensor]]:
-        if self.pattern == "full":
-            for layer in self.layers:
-                demo, obs = layer.forward_full(demo, obs)
-            return demo, obs, []
         demo_out, cache = self.encode_demo(demo)
+        if self.pattern == "full":
+            return demo_out, self.attend_obs_causal(obs, cache), []
         obs_out, weights = self.attend_obs(obs, cache, return_weights)
         return demo_out, obs_out, weights

@@ -1,0 +1,41 @@
+"""The conventions every part of the toolkit shares, in one place: feature keys, rates, sizes and seed rules.
+
+Datasets, policies, the gym environments and both evaluation front-ends (``mosaic-eval`` and ``lerobot-eval
+--env.type=mosaic``) read these names instead of repeating literals. Standard library only: policies import it
+without loading the simulator.
+"""
+
+CAMERA_KEY = "observation.images.agentview"
+"""The camera every dataset records and every policy reads (the paper's agent view)."""
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+DEMO_KEY = "demo"
+"""The observation key under which an environment delivers the demonstration (``lerobot-eval --env.type=mosaic``)."""
+OBS_DEMO_KEY = f"observation.{DEMO_KEY}"
+"""The same after LeRobot's ``preprocess_observation``: (B, K, 3, H, W) float in [0, 1] once pre-processed."""
+DEMO_FRAMES_KEY = "demo_frames"
+"""Batch key of paired demonstrator frames in training, (B, K, 3, H, W) float in [0, 1]."""
+
+FPS = 20
+"""Control and recording rate (Hz) of every task and dataset."""
+IMAGE_HEIGHT = 100
+IMAGE_WIDTH = 180
+"""The paper's camera size; datasets may be collected smaller (``--image-size``), a policy takes its dataset's."""
+STATE_DIM = 10
+ACTION_DIM = 7
+N_DEMO_FRAMES = 4
+"""Frames of the demonstration a policy conditions on: first, last, one from each middle segment."""
+
+# --- seeds -----------------------------------------------------------------------------------------------
+# `mosaic-data collect` seeds training instances from 0 up; evaluation uses instances from EVAL_BASE_SEED.
+# Evaluation episode e of variation v, from base seed B (mosaic-eval's --seed, lerobot-eval's --seed):
+#   episode seed      s = B + e                       (what LeRobot's eval loop passes to env.reset)
+#   agent instance      s + SEED_STRIDE_VARIATION * v
+#   demonstrator        s + SEED_STRIDE_VARIATION * v + DEMO_SEED_OFFSET, then + DEMO_RETRY_STRIDE per expert retry
+# so the demonstration always shows another instance than the agent's, and no two episodes share one.
+EVAL_BASE_SEED = 1_000_000_000
+SEED_STRIDE_VARIATION = 100_000
+DEMO_SEED_OFFSET = 50_000
+DEMO_RETRY_STRIDE = 5_000
+MAX_EPISODES_PER_VARIATION = DEMO_RETRY_STRIDE
+"""Episodes per variation for which the seed rule above gives distinct instances."""

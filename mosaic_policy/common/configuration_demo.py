@@ -1,0 +1,205 @@
+"""Options every demonstration-conditioned policy shares (MOSAIC and the paper's baselines).
+
+One place for the demonstrator dataset, the time scale (frames per sample, stride, action chunk), the action
+head, the augmentations, the loss balancing and the optimiser, so that every row of the paper's Table I trains on
+the same samples with the same head and the same budget. A policy's own configuration subclasses this one and
+adds its architecture's options.
+"""
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
+from lerobot.optim import AdamConfig
+
+from mosaic_data.constants import N_DEMO_FRAMES
+
+from .run_progress import RunProgressSchedulerConfig
+
+ACTION_SAMPLING = ("mode", "sample")
+
+
+@dataclass
+class DemoConditionedConfig(PreTrainedConfig):
+    """Shared options; see each policy's configuration for its architecture.
+
+    Time scale: datasets are recorded at 20 Hz, the paper's policy acts at about 4 Hz (its original code repeats
+    every action 5 times). A policy is queried every `action_chunk` (5) control steps and predicts the next
+    `action_chunk` 20 Hz targets, executed in order; a training sample holds `train_obs_frames` (7) agent frames
+    `frame_stride` (5) frames apart, i.e. 1.75 s as in the paper. Every sample is paired with `n_demo_frames`
+    frames of one demonstrator episode of the same variation (same LeRobot task string) and another instance:
+    first, last, and one random frame from each middle segment. Actions are normalised to [-1, 1] (MIN_MAX) and
+    modelled per dimension by a discretised logistic mixture over `action_bins` bins. Images only (the paper);
+    `use_state` adds the robot state.
+
+    Args:
+        - demo_repo_id: Repo id of the demonstrator dataset (e.g. "mosaic/door_sawyer"); needed for training.
+        - demo_root: Local folder of the demonstrator dataset (default: LeRobot's cache, $HF_LEROBOT_HOME/repo_id).
+        - demo_loader_threads: Background threads decoding demonstrator frames ahead of the training step
+            (0 decodes synchronously inside forward()).
+        - demo_prefetch_batches: Batches of demonstrator samples per variation kept decoded ahead.
+        - image_key: Camera feature used by the policy (default: the only/first visual input feature).
+        - n_demo_frames: Demonstration frames the policy conditions on (first, last, one per middle segment).
+        - train_obs_frames: Observation frames per training sample, `frame_stride` dataset frames apart.
+        - frame_stride: Dataset frames between two observation frames of a sample (5 at 20 Hz: 0.25 s).
+        - action_chunk: Consecutive 20 Hz targets predicted per query, executed in order.
+        - eval_obs_frames: Observation frames per inference step (1: the current frame; policies with a memory
+            of past frames keep their own).
+        - embed_dim: Size of the per-frame embedding fed to the heads.
+        - head_hidden_dim: Hidden width of the action / inverse-dynamics MLPs.
+        - use_state: Concatenate the normalised robot state to the embedding in the action head (off in the paper).
+        - n_mixtures, action_bins: Logistic mixture components and discretisation bins per action dimension.
+        - action_sampling: "mode" (deterministic) or "sample" at inference.
+        - bc_loss_weight, inverse_loss_weight: Loss weights (paper: 1, 1).
+        - augment, crop_scale_min, translate_fraction, color_jitter, blur_probability: training augmentations.
+        - balance_loss: Average the loss per variation, then per task (the paper's rule), whatever the batch mix.
+        - optimizer_lr, optimizer_weight_decay: Adam (paper: lr 5e-4). Batch size is lerobot-train's --batch_size.
+    """
+
+    # Repo id of the demonstrator dataset, same variations (LeRobot task strings) as the agent dataset.
+    demo_repo_id: str | None = None
+    # Local folder of the demonstrator dataset (default: $HF_LEROBOT_HOME/<demo_repo_id>).
+    demo_root: str | None = None
+    # Background threads decoding demonstrator frames while the model trains (0: synchronous).
+    demo_loader_threads: int = 2
+    # Batches of demonstrator samples per variation kept decoded ahead of the training step.
+    demo_prefetch_batches: int = 2
+
+    # Camera used by the policy; None picks the single (or first) visual input feature.
+    image_key: str | None = None
+    # Demonstration frames (first, last, one random frame per middle segment).
+    n_demo_frames: int = N_DEMO_FRAMES
+    # Observation frames per training sample, frame_stride dataset frames apart (7 x 0.25 s, the paper's window).
+    train_obs_frames: int = 7
+    # Dataset frames between consecutive observation frames of a sample (5 at 20 Hz = the paper's 4 Hz).
+    frame_stride: int = 5
+    # 20 Hz targets predicted per query, executed in order (the policy is queried every action_chunk steps).
+    action_chunk: int = 5
+    # Observation frames per inference step (the paper uses the current frame only).
+    eval_obs_frames: int = 1
+
+    # Normalisation per feature type: state MEAN_STD, action MIN_MAX to [-1, 1] (the head's bins), camera IDENTITY.
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.MEAN_STD,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+
+    # Per-frame embedding size fed to the action and inverse-dynamics heads.
+    embed_dim: int = 256
+    # Hidden width of the action / inverse-dynamics MLPs.
+    head_hidden_dim: int = 256
+    # Concatenate the normalised robot state to the embedding in the action head (the paper: images only).
+    use_state: bool = False
+    # Logistic mixture components per action dimension.
+    n_mixtures: int = 3
+    # Discretisation bins per action dimension over the normalised range [-1, 1].
+    action_bins: int = 256
+    # Inference: "mode" (mean of the most likely component) or "sample".
+    action_sampling: str = "mode"
+
+    # Weight of the behaviour-cloning loss (paper: 1).
+    bc_loss_weight: float = 1.0
+    # Weight of the inverse-dynamics loss (paper: 1).
+    inverse_loss_weight: float = 1.0
+
+    # Training augmentations (translate/crop, colour jitter, Gaussian blur); never at inference.
+    augment: bool = True
+    # Smallest area fraction kept by the random resized crop.
+    crop_scale_min: float = 0.8
+    # Largest random translation as a fraction of the image size.
+    translate_fraction: float = 0.05
+    # Brightness / contrast / saturation jitter strength (hue: a quarter of it).
+    color_jitter: float = 0.2
+    # Probability of a Gaussian blur.
+    blur_probability: float = 0.3
+
+    # Average the loss per variation, then per task, whatever the batch composition.
+    balance_loss: bool = True
+
+    # Adam learning rate (paper: 5e-4).
+    optimizer_lr: float = 5e-4
+    # Adam weight decay.
+    optimizer_weight_decay: float = 0.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.action_sampling not in ACTION_SAMPLING:
+            raise ValueError(
+                f"`action_sampling` must be one of {ACTION_SAMPLING}, got {self.action_sampling!r}: "
+                "pass e.g. --policy.action_sampling=mode."
+            )
+        if self.n_demo_frames < 2:
+            raise ValueError(f"`n_demo_frames` must be >= 2 (first and last frame), got {self.n_demo_frames}.")
+        for name in ("train_obs_frames", "eval_obs_frames", "frame_stride", "action_chunk", "n_mixtures", "embed_dim"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
+        if self.action_bins < 2:
+            raise ValueError(f"`action_bins` must be >= 2, got {self.action_bins}.")
+        if self.demo_loader_threads < 0:
+            raise ValueError(f"`demo_loader_threads` must be >= 0, got {self.demo_loader_threads}.")
+
+    def _save_pretrained(self, save_directory: Path) -> None:
+        """config.json without ``demo_root``: a folder of this machine, meaningless where the policy is loaded
+        (the Hub, another machine). A loaded policy that trains again finds its demonstrator dataset in
+        LeRobot's cache ($HF_LEROBOT_HOME/<demo_repo_id>) unless ``--policy.demo_root`` is given again;
+        evaluation never reads it. (lerobot-train's own train_config.json keeps the run's paths for --resume.)
+        """
+        demo_root, self.demo_root = self.demo_root, None
+        try:
+            super()._save_pretrained(save_directory)
+        finally:
+            self.demo_root = demo_root
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(lr=self.optimizer_lr, weight_decay=self.optimizer_weight_decay)
+
+    def get_scheduler_preset(self) -> RunProgressSchedulerConfig:
+        """A constant learning rate through a scheduler that knows the run's length (lerobot-train tells a
+        scheduler `--steps`): schedules inside the policy (MOSAIC's EMA momentum) end with the run."""
+        return RunProgressSchedulerConfig()
+
+    @property
+    def camera_key(self) -> str:
+        """The visual feature the policy reads."""
+        if self.image_key is not None:
+            return self.image_key
+        if not self.image_features:
+            raise ValueError(f"{self.type} needs one camera among the input features (e.g. observation.images.agentview).")
+        return next(iter(self.image_features))
+
+    def validate_features(self) -> None:
+        if not self.image_features:
+            raise ValueError(f"{self.type} needs a camera input (e.g. observation.images.agentview); the dataset has none.")
+        if self.image_key is not None and self.image_key not in self.image_features:
+            raise ValueError(
+                f"`image_key`={self.image_key!r} is not a visual input feature; available: {sorted(self.image_features)}."
+            )
+        if self.action_feature is None:
+            raise ValueError(f"{self.type} needs an `action` output feature.")
+        if self.image_features[self.camera_key].type is not FeatureType.VISUAL:
+            raise ValueError(f"{self.camera_key} is not a visual feature.")
+
+    @property
+    def drop_n_last_frames(self) -> int:
+        """Every frame may start a sample: frames past an episode's end are padded and masked (`*_is_pad`)."""
+        return 0
+
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        return [i * self.frame_stride for i in range(self.train_obs_frames)]
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        """Every 20 Hz action from the first observation frame to the end of the last frame's chunk."""
+        return list(range((self.train_obs_frames - 1) * self.frame_stride + self.action_chunk))
+
+    def action_window_indices(self) -> list[list[int]]:
+        """For each observation frame of a sample, the positions of its chunk in the sample's action window."""
+        return [[i * self.frame_stride + j for j in range(self.action_chunk)] for i in range(self.train_obs_frames)]
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None

@@ -1,0 +1,341 @@
+"""The LeRobot policy interface every demonstration-conditioned policy shares; each policy supplies its model.
+
+Training (lerobot-train): a batch holds `train_obs_frames` agent frames per sample, `frame_stride` frames apart,
+and the 20 Hz actions of the whole window; every frame predicts the `action_chunk` targets that follow it. The
+demonstrator frames and the loss weights come from :class:`~.demo_conditioning.DemoConditioning`. A subclass
+implements :meth:`build` (its modules), :meth:`compute_loss` (per-sample losses of a :class:`TrainingSample`),
+:meth:`encode_demo` (what it keeps of a demonstration for a whole episode) and :meth:`chunk_distribution` (the
+action distribution of the current frame).
+
+Inference: `policy.reset()` then `policy.set_demo(video)` once per episode (the policy encodes and caches what
+it can), then `select_action(batch)` every control step: the policy runs once per `action_chunk` steps and hands
+out the predicted targets in order. An environment can deliver the demonstration as the observation
+`observation.demo` (what `lerobot-eval --env.type=mosaic` does): the first `select_action` after `reset()`
+caches it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from mosaic_data.constants import DEMO_FRAMES_KEY, OBS_DEMO_KEY
+
+from .augmentation import FrameAugmentation
+from .configuration_demo import DemoConditionedConfig
+from .demo_conditioning import DemoConditioning, to_float_frames
+from .discretized_logistic import DiscretizedLogisticHead, DiscretizedLogisticMixture
+from .paired_sampling import demo_frame_indices
+
+if TYPE_CHECKING:
+    from huggingface_hub import ModelCard
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.datasets import LeRobotDatasetMetadata
+
+
+@dataclass
+class TrainingSample:
+    """One training batch in the shapes every policy's loss reads."""
+
+    obs: Tensor  # (B, T, 3, H, W) float in [0, 1], un-augmented
+    demo: Tensor  # (B, D, 3, H, W) float in [0, 1], un-augmented
+    chunks: Tensor  # (B, T, action_chunk, A) normalised targets that follow each observation frame
+    chunk_valid: Tensor  # (B, T, action_chunk) real targets of real frames
+    valid: Tensor  # (B, T) real observation frames (not padding past the episode's end)
+    state: Tensor | None  # (B, T, state_dim) or None
+    batch: dict[str, Any]
+
+
+def chunk_nll(distribution: DiscretizedLogisticMixture, chunks: Tensor) -> Tensor:
+    """Negative log-likelihood per target (B, T, chunk), summed over action dimensions."""
+    flat = chunks.flatten(-2)  # (B, T, chunk * A), the head's layout
+    return -distribution.log_prob(flat).reshape(chunks.shape).sum(-1)
+
+
+def masked_mean(values: Tensor, mask: Tensor) -> Tensor:
+    """Mean over the last axis of the entries where mask is true (0 where none is)."""
+    mask = mask.to(values.dtype)
+    return (values * mask).sum(-1) / mask.sum(-1).clamp(min=1.0)
+
+
+def make_action_head(config: DemoConditionedConfig, in_dim: int, action_dim: int) -> DiscretizedLogisticHead:
+    """The paper's action head: one discretised logistic mixture per action dimension of every chunk target."""
+    return DiscretizedLogisticHead(
+        in_dim, action_dim * config.action_chunk, config.n_mixtures, config.head_hidden_dim, config.action_bins
+    )
+
+
+class DemoConditionedPolicy(PreTrainedPolicy):
+    """Shared interface; see the module docstring. Subclasses set ``config_class`` and ``name``."""
+
+    config_class = DemoConditionedConfig
+    name = "demo_conditioned"
+
+    def __init__(self, config: DemoConditionedConfig, dataset_meta=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.camera_key = config.camera_key
+        image_shape = tuple(config.image_features[self.camera_key].shape)  # (3, H, W)
+        self.image_hw = (int(image_shape[-2]), int(image_shape[-1]))
+        state = config.robot_state_feature
+        self.state_dim = int(state.shape[0]) if state is not None else 0
+        if config.use_state and state is None:
+            raise ValueError("`use_state` is on but the dataset has no observation.state; pass --policy.use_state=false.")
+        self.action_dim = int(config.action_feature.shape[0])
+        self.augment = FrameAugmentation(
+            *self.image_hw,
+            crop_scale_min=config.crop_scale_min,
+            translate_fraction=config.translate_fraction,
+            color_jitter=config.color_jitter,
+            blur_probability=config.blur_probability,
+        )
+        self.build(self.image_hw, self.state_dim if config.use_state else 0, self.action_dim)
+        if dataset_meta is not None:
+            self.conditioning = DemoConditioning.for_training(config, dataset_meta, kwargs.get("agent_episodes"))
+        else:
+            self.conditioning = DemoConditioning(None, config.balance_loss)
+        self.reset()
+
+    # -- what a policy supplies ----------------------------------------------------------------------------
+
+    def build(self, image_hw: tuple[int, int], state_dim: int, action_dim: int) -> None:
+        """Create the policy's modules; ``state_dim`` is 0 unless the action head reads the state."""
+        raise NotImplementedError
+
+    def compute_loss(self, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
+        """Per-sample losses (B,) of a training batch, and figures to log."""
+        raise NotImplementedError
+
+    def encode_demo(self, demo: Tensor) -> Any:
+        """What the policy keeps of a demonstration (B, n_demo_frames, 3, H, W) for a whole episode."""
+        raise NotImplementedError
+
+    def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Any) -> DiscretizedLogisticMixture:
+        """The action distribution (B, action_chunk * A) of the current frame (B, 3, H, W) given the context."""
+        raise NotImplementedError
+
+    def reset_memory(self) -> None:
+        """Forget what the policy remembers of the current episode's frames (policies with a memory)."""
+
+    # -- LeRobot interface ----------------------------------------------------------------------------------
+
+    def get_optim_params(self) -> list[nn.Parameter]:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    def reset(self):
+        """Forget the demonstration (call `set_demo` again before the next episode's first action)."""
+        self._context: Any = None
+        self._action_queue: deque[Tensor] = deque()  # the current chunk's targets not yet handed out
+        object.__setattr__(self, "_inference_trunk", None)
+        self.reset_memory()
+
+    @property
+    def has_demo(self) -> bool:
+        return self._context is not None
+
+    @torch.no_grad()
+    def set_demo(self, frames: Tensor | np.ndarray) -> None:
+        """Condition the policy on one demonstration for the coming episode.
+
+        frames: the demonstrator's video, (N, 3, H, W) or (N, H, W, 3), or batched (B, N, ...), uint8 or
+        float in [0, 1], at the dataset's image size. N == n_demo_frames is used as is; otherwise the first,
+        last and middle-segment centre frames are picked. What the policy can compute from the demonstration
+        alone is computed here once and kept until `reset()`.
+        """
+        frames = to_float_frames(frames)
+        if frames.dim() == 4:
+            frames = frames.unsqueeze(0)
+        if frames.dim() != 5:
+            raise ValueError(f"set_demo expects (N, 3, H, W) or (B, N, 3, H, W) frames, got shape {tuple(frames.shape)}.")
+        self.check_image_size(frames, "demonstration")
+        n = self.config.n_demo_frames
+        if frames.shape[1] != n:
+            frames = frames[:, demo_frame_indices(frames.shape[1], n)]
+        # Inference uses a BatchNorm-folded channels-last copy of the trunk, rebuilt here so it follows training.
+        # Kept out of the module tree (object.__setattr__): not a parameter, not in the checkpoint.
+        trunk = getattr(getattr(self, "model", None), "trunk", None)
+        fused = trunk.fused_for_inference() if trunk is not None and not self.training else None
+        object.__setattr__(self, "_inference_trunk", fused)
+        self.reset_memory()
+        self._action_queue.clear()
+        self._context = self.encode_demo(frames.to(self.device))
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.parameters()).device
+
+    def trunk_for_inference(self) -> nn.Module:
+        """The fused trunk while acting (eval mode, after set_demo), else the trained one."""
+        fused = getattr(self, "_inference_trunk", None)
+        return fused if fused is not None and not self.training else self.model.trunk
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """Normalised targets (B, action_chunk, action_dim) for the current frame and the steps after it."""
+        return self._act(batch)
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """Normalised action (B, action_dim) for this control step; the postprocessor unnormalises it.
+
+        The policy runs on every `action_chunk`-th call and hands out its chunk's targets in order in between.
+        """
+        return self._next_action(batch)
+
+    def _next_action(self, batch: dict[str, Tensor]) -> Tensor:
+        if not self._action_queue:
+            chunk = self._act(batch)
+            self._action_queue.extend(chunk.transpose(0, 1))  # (B, action_dim) per step
+        return self._action_queue.popleft()
+
+    def _ensure_demo(self, batch: dict[str, Tensor]) -> None:
+        if self._context is not None:
+            return
+        demo = next((batch[key] for key in (DEMO_FRAMES_KEY, OBS_DEMO_KEY) if key in batch), None)
+        if demo is None:
+            raise RuntimeError(
+                f"{self.name} needs a demonstration: call policy.set_demo(video) after policy.reset(), once per "
+                f"episode (or give it in the batch as '{DEMO_FRAMES_KEY}' or '{OBS_DEMO_KEY}')."
+            )
+        self.set_demo(demo)
+
+    def current_inputs(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor | None]:
+        """The current frame (B, 3, H, W) float and state (B, S) of an inference batch."""
+        image = batch[self.camera_key]
+        if image.dim() == 5:  # (B, T, 3, H, W): keep the current (last) frame
+            image = image[:, -1]
+        image = to_float_frames(image) if image.dtype == torch.uint8 else image.float()
+        self.check_image_size(image, "observation")
+        state = batch.get(OBS_STATE)
+        if state is not None and state.dim() == 3:
+            state = state[:, -1]
+        return image, state
+
+    def _act(self, batch: dict[str, Tensor]) -> Tensor:
+        """Normalised targets (B, action_chunk, action_dim) from the current frame."""
+        self._ensure_demo(batch)
+        image, state = self.current_inputs(batch)
+        distribution = self.chunk_distribution(image, state, self._context)
+        return self.actions_of(distribution)
+
+    def actions_of(self, distribution: DiscretizedLogisticMixture) -> Tensor:
+        action = distribution.sample() if self.config.action_sampling == "sample" else distribution.mode()
+        return action.reshape(action.shape[0], self.config.action_chunk, self.action_dim)
+
+    def check_image_size(self, frames: Tensor, what: str) -> None:
+        if tuple(frames.shape[-2:]) != self.image_hw or frames.shape[-3] != 3:
+            raise ValueError(
+                f"{what} frames are {tuple(frames.shape[-3:])} (C, H, W) but this policy was built for "
+                f"(3, {self.image_hw[0]}, {self.image_hw[1]}); resize the camera or collect at that size."
+            )
+
+    # -- training -------------------------------------------------------------------------------------------
+
+    def training_sample(self, batch: dict[str, Any]) -> TrainingSample:
+        obs = batch[self.camera_key]
+        if obs.dim() == 4:
+            obs = obs.unsqueeze(1)
+        obs = to_float_frames(obs) if obs.dtype == torch.uint8 else obs.float()
+        self.check_image_size(obs, "observation")
+        b, t = obs.shape[:2]
+        demo = self.conditioning.demo_frames(batch).to(obs.device)
+        self.check_image_size(demo, "demonstration")
+        if demo.shape[1] != self.config.n_demo_frames:
+            raise ValueError(f"expected {self.config.n_demo_frames} demonstration frames per sample, got {demo.shape[1]}.")
+        chunks, chunk_valid = self.action_chunks(batch, t)
+        obs_pad = batch.get(f"{self.camera_key}_is_pad")
+        valid = ~obs_pad.reshape(b, t) if obs_pad is not None else chunk_valid[:, :, 0]
+        state = batch.get(OBS_STATE)
+        if state is not None and state.dim() == 2:
+            state = state.unsqueeze(1)
+        return TrainingSample(obs, demo, chunks, chunk_valid & valid[:, :, None], valid, state, batch)
+
+    def forward(self, batch: dict[str, Any], reduction: str = "mean") -> tuple[Tensor, dict]:
+        sample = self.training_sample(batch)
+        per_sample, info = self.compute_loss(sample)
+        wait = self.conditioning.last_wait_s
+        if wait is not None:
+            info["demo_wait_s"] = wait
+        b = per_sample.shape[0]
+        weights = self.conditioning.sample_weights(batch, b, per_sample.device)
+        if reduction == "none":
+            return per_sample * weights * b, info
+        loss = (per_sample * weights).sum()
+        info["loss"] = loss.item()
+        return loss, info
+
+    def action_chunks(self, batch: dict[str, Any], n_frames: int) -> tuple[Tensor, Tensor]:
+        """Each observation frame's chunk of targets from the sample's action window, and which are real.
+
+        batch[ACTION]: (B, L, A) 20 Hz actions from the first observation frame on (L = (T-1) * frame_stride +
+        action_chunk under lerobot-train), or (B, A) for a single frame. Positions past the window or padded
+        by LeRobot (past the episode's end) are masked.
+        """
+        actions = batch[ACTION]
+        if actions.dim() == 2:
+            actions = actions.unsqueeze(1)
+        b, length = actions.shape[:2]
+        pad = batch.get(f"{ACTION}_is_pad")
+        real = ~pad.reshape(b, length) if pad is not None else torch.ones(b, length, dtype=torch.bool, device=actions.device)
+        index = torch.tensor(self.config.action_window_indices()[:n_frames], device=actions.device)  # (T, chunk)
+        inside = index < length
+        index = index.clamp(max=length - 1)
+        return actions[:, index], real[:, index] & inside
+
+    def views(self, sample: TrainingSample) -> tuple[Tensor, Tensor]:
+        """(demo, obs) as the model sees them in training: one augmented view (none with augment off)."""
+        if self.training and self.config.augment:
+            return self.augment(sample.demo), self.augment(sample.obs)
+        return sample.demo, sample.obs
+
+    def bc_loss(self, distribution: DiscretizedLogisticMixture, sample: TrainingSample) -> Tensor:
+        """Per-sample behaviour-cloning NLL: every observation frame predicts the chunk that follows it."""
+        nll = chunk_nll(distribution, sample.chunks)  # (B, T, chunk)
+        return masked_mean(nll.flatten(1), sample.chunk_valid.flatten(1)) * self.config.action_chunk
+
+    def inverse_loss(self, head: DiscretizedLogisticHead, embeddings: Tensor, sample: TrainingSample) -> Tensor:
+        """Per-sample inverse-dynamics NLL: two consecutive frame embeddings -> the targets from the first on."""
+        b, t = embeddings.shape[:2]
+        if t < 2:
+            return torch.zeros(b, device=embeddings.device)
+        pair_valid = sample.chunk_valid[:, :-1] & sample.valid[:, 1:, None]
+        inverse_in = torch.cat([embeddings[:, :-1], embeddings[:, 1:]], dim=-1)
+        nll = chunk_nll(head(inverse_in), sample.chunks[:, :-1])
+        return masked_mean(nll.flatten(1), pair_valid.flatten(1)) * self.config.action_chunk
+
+    def state_for_head(self, state: Tensor | None, like: Tensor) -> Tensor | None:
+        """The state the action head reads (None unless use_state), shaped like the embeddings' leading dims."""
+        if not self.config.use_state:
+            return None
+        if state is None:
+            raise ValueError("use_state is on but the batch has no observation.state.")
+        return state.reshape(*like.shape[:-1], -1)
+
+    # -- hub ------------------------------------------------------------------------------------------------
+
+    def generate_model_card(
+        self,
+        dataset_repo_id: str,
+        model_type: str,
+        license: str | None,
+        tags: list[str] | None,
+        cfg: TrainPipelineConfig | None = None,
+        dataset_meta: LeRobotDatasetMetadata | None = None,
+    ) -> ModelCard:
+        """The Hub card ``push_model_to_hub`` writes: this toolkit's (plugin install, the demonstration input,
+        mosaic-eval / lerobot-eval --env.type=mosaic), not LeRobot's real-robot ``lerobot-rollout`` card."""
+        from lerobot.policies.pretrained import _build_card_context
+
+        from .model_card import build_model_card
+
+        context = _build_card_context(cfg, dataset_meta, self.config.input_features, self.config.output_features)
+        return build_model_card(self.config, self.image_hw, dataset_repo_id, context, license, tags)

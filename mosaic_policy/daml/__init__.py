@@ -1,0 +1,1 @@
+"""daml policy: configuration_daml.py, modeling_daml.py, processor_daml.py."""

@@ -1,0 +1,222 @@
+"""DAML: the policy adapts its weights to the demonstration by gradient descent (Yu et al., RSS 2018).
+
+Per frame: ResNet-18 trunk (to layer3) -> spatial soft-argmax keypoints -> policy MLP (`n_policy_layers` hidden
+layers, then the embedding) -> the shared discretised logistic action head. The demonstrator is another robot,
+so its video has no actions to imitate: the inner step descends a *learned* temporal adaptation loss of the
+policy's own activations on the demo frames, and the outer loss (behaviour cloning on the agent's frames with
+the adapted weights) teaches that loss, the initial weights and the inner learning rates what a useful
+adaptation is.
+
+What is adapted, and why:
+
+- the policy MLP only. The trunk is shared and meta-learned but never adapted: a per-sample copy of its 2.8M
+  weights (and their second-order graph) for every sample of every batch costs far more than the small MLP,
+  and DAML itself adapts a small network on top of its features.
+- the action head is shared, not adapted: the adaptation loss reads the MLP's activations, never the head's
+  output, so its inner gradient is zero and adapting it would only copy it per sample.
+
+The adaptation loss: a stack of temporal 1-D convolutions (`adapt_loss_channels`) over the embeddings of the
+`n_demo_frames` demo frames in order; the inner loss is the squared L2 norm of its output per frame, averaged
+over the frames. Its gradient reaches the adapted weights through the activations. Each adapted tensor has its
+own learned inner learning rate (stored as a log, initialised at `inner_lr`).
+
+Meta-gradient: the inner gradient is taken per sample with `torch.func` (`grad` inside `vmap`); composed under
+autograd it keeps its graph, so the outer loss reaches the adaptation loss through second-order terms. With
+`first_order=True` the inner gradient is detached: the initial weights and learning rates still learn, but the
+adaptation loss network then gets no gradient at all (it stays at its initialisation).
+
+Not in DAML, so left out: the inverse-dynamics loss (`inverse_loss_weight` is unused by this policy) and the
+contrastive losses. Acting, `set_demo` computes the adapted weights once per episode; every query then runs the
+trunk, the keypoints and the adapted MLP on the current frame.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import torch
+from torch import Tensor, nn
+from torch.func import functional_call, grad_and_value, vmap
+
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
+from ..common.discretized_logistic import DiscretizedLogisticMixture
+from ..common.frame_features import EMBED_CHANNELS, trunk_features
+from ..common.resnet_trunk import ResNetTrunk
+from .configuration_daml import DamlConfig
+
+N_KEYPOINTS = EMBED_CHANNELS
+"""Keypoints per frame (each an expected (x, y)): as many as the channels other policies keep per location."""
+
+ADAPT_KERNEL = 3
+"""Temporal kernel of the adaptation loss's convolutions: neighbouring demo frames (there are only a few)."""
+
+AdaptedWeights = dict[str, Tensor]
+"""The adapted policy MLP's tensors by parameter name, each with a leading batch axis (one set per demo)."""
+
+
+class SpatialSoftArgmax(nn.Module):
+    """(N, C, h, w) features -> (N, 2K) keypoints: a 1x1 convolution to K maps, a softmax over each map's
+    locations, and the expected (x, y) in [-1, 1]. DAML's feature points: where things are, not what they are."""
+
+    def __init__(self, channels: int, height: int, width: int, n_keypoints: int = N_KEYPOINTS):
+        super().__init__()
+        self.conv = nn.Conv2d(channels, n_keypoints, 1, bias=False)  # a softmax ignores a per-map shift
+        ys, xs = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width), indexing="ij")
+        self.register_buffer("grid", torch.stack([xs.flatten(), ys.flatten()], dim=-1), persistent=False)  # (h*w, 2)
+
+    def forward(self, features: Tensor) -> Tensor:
+        attention = self.conv(features).flatten(2).softmax(dim=-1)  # (N, K, h*w)
+        return (attention @ self.grid).flatten(1)  # (N, K * 2): x, y of each keypoint
+
+
+def policy_mlp(in_dim: int, hidden_dim: int, n_hidden: int, out_dim: int) -> nn.Sequential:
+    """The adapted layers: `n_hidden` ReLU layers of `hidden_dim`, then a ReLU embedding of `out_dim`.
+
+    He-initialised: with PyTorch's default the keypoints' differences between frames (~0.15) reached the head
+    some 25 times smaller (3 layers), and the head barely told frames apart early in training."""
+    layers: list[nn.Module] = []
+    for i in range(n_hidden):
+        layers += [nn.Linear(in_dim if i == 0 else hidden_dim, hidden_dim), nn.ReLU()]
+    layers += [nn.Linear(hidden_dim, out_dim), nn.ReLU()]
+    for layer in layers:
+        if isinstance(layer, nn.Linear):
+            nn.init.kaiming_normal_(layer.weight, nonlinearity="relu")
+            nn.init.zeros_(layer.bias)
+    return nn.Sequential(*layers)
+
+
+class TemporalAdaptationLoss(nn.Module):
+    """The learned inner loss of one demo: temporal convolutions over its frames' activations (D, E) -> the
+    mean over frames of the squared L2 norm of the output. Sees no action: the demonstrator is another robot."""
+
+    def __init__(self, in_dim: int, channels: int):
+        super().__init__()
+        pad = ADAPT_KERNEL // 2
+        self.net = nn.Sequential(
+            nn.Conv1d(in_dim, channels, ADAPT_KERNEL, padding=pad),
+            nn.ReLU(),
+            nn.Conv1d(channels, channels, ADAPT_KERNEL, padding=pad),
+            nn.ReLU(),
+            nn.Conv1d(channels, channels, 1),
+        )
+
+    def forward(self, activations: Tensor) -> Tensor:
+        """(D, E) activations of one demo's frames, in order -> scalar loss (unbatched: it runs inside vmap)."""
+        return self.net(activations.T).pow(2).sum(0).mean()
+
+
+class DamlModel(nn.Module):
+    """Trunk, keypoints, the adapted policy MLP, the shared action head, the adaptation loss, the inner rates."""
+
+    def __init__(self, config: DamlConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
+        super().__init__()
+        self.trunk = ResNetTrunk()
+        channels, h, w = self.trunk.feature_shape(*image_hw)
+        self.feature_shape = (channels, h, w)
+        self.keypoints = SpatialSoftArgmax(channels, h, w)
+        self.policy = policy_mlp(2 * N_KEYPOINTS, config.policy_hidden_dim, config.n_policy_layers, config.embed_dim)
+        self.state_dim = state_dim
+        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
+        self.adapt_loss = TemporalAdaptationLoss(config.embed_dim, config.adapt_loss_channels)
+        self.adapted_names = [name for name, _ in self.policy.named_parameters()]
+        # One learned inner learning rate per adapted tensor, kept as a log so it stays positive.
+        self.log_inner_lr = nn.Parameter(torch.full((len(self.adapted_names),), math.log(config.inner_lr)))
+
+    def frame_keypoints(self, trunk: nn.Module, frames: Tensor) -> Tensor:
+        """(B, T, 3, H, W) -> (B, T, 2K)."""
+        features = trunk_features(trunk, frames)  # (B, C, T, h, w)
+        b, _, t = features.shape[:3]
+        return self.keypoints(features.transpose(1, 2).flatten(0, 1)).reshape(b, t, -1)
+
+    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
+        if self.state_dim:
+            embeddings = torch.cat([embeddings, state], dim=-1)
+        return self.action_head(embeddings)
+
+
+class DamlPolicy(DemoConditionedPolicy):
+    """DAML as a LeRobot policy; see the module docstring."""
+
+    config_class = DamlConfig
+    name = "daml"
+
+    def build(self, image_hw: tuple[int, int], state_dim: int, action_dim: int) -> None:
+        self.model = DamlModel(self.config, image_hw, state_dim, action_dim)
+
+    # -- the inner step -------------------------------------------------------------------------------------
+
+    def adapt(self, demo_keypoints: Tensor) -> tuple[AdaptedWeights, Tensor]:
+        """Per-sample adapted policy weights from demo keypoints (B, D, 2K), and each sample's inner loss
+        before adaptation (B,). The module's own parameters are read, never written."""
+        params = dict(self.model.policy.named_parameters())
+        step = vmap(self._inner_step, in_dims=(None, 0))  # the first step starts from the shared weights
+        adapted, loss_before = step(params, demo_keypoints)
+        for _ in range(self.config.inner_steps - 1):
+            adapted, _ = vmap(self._inner_step)(adapted, demo_keypoints)
+        return adapted, loss_before
+
+    def _inner_step(self, params: dict[str, Tensor], demo_keypoints: Tensor) -> tuple[dict[str, Tensor], Tensor]:
+        """One gradient step of one sample's weights on its demo's adaptation loss (runs inside vmap)."""
+        # First order: the inner gradient is a constant of the outer loss, so no outer graph is recorded for it
+        # (torch.func.grad still differentiates under an outer no_grad: a transform ignores it).
+        with torch.no_grad() if self.config.first_order else contextlib.nullcontext():
+            grads, loss = grad_and_value(self._adaptation_loss)(params, demo_keypoints)
+        rates = self.model.log_inner_lr.exp()
+        new = {name: params[name] - rates[i] * grads[name] for i, name in enumerate(self.model.adapted_names)}
+        return new, loss
+
+    def _adaptation_loss(self, params: dict[str, Tensor], demo_keypoints: Tensor) -> Tensor:
+        """The learned loss of one demo (D, 2K) under the policy weights `params`."""
+        return self.model.adapt_loss(functional_call(self.model.policy, params, (demo_keypoints,)))
+
+    def adapted_embeddings(self, adapted: AdaptedWeights, keypoints: Tensor) -> Tensor:
+        """(B, T, 2K) keypoints through each sample's adapted MLP -> (B, T, embed_dim)."""
+        return vmap(lambda p, x: functional_call(self.model.policy, p, (x,)))(adapted, keypoints)
+
+    # -- inference ------------------------------------------------------------------------------------------
+
+    def encode_demo(self, demo: Tensor) -> AdaptedWeights:
+        """The adapted weights for the episode, one set per demo (B, ...).
+
+        `set_demo` runs this under `torch.no_grad()`: `torch.func.grad` takes its inner gradient regardless
+        (a function transform ignores an outer no_grad), and the result carries no graph to keep."""
+        keypoints = self.model.frame_keypoints(self.trunk_for_inference(), demo)
+        adapted, _ = self.adapt(keypoints)
+        return {name: tensor.detach() for name, tensor in adapted.items()}
+
+    def chunk_distribution(
+        self, image: Tensor, state: Tensor | None, context: AdaptedWeights
+    ) -> DiscretizedLogisticMixture:
+        keypoints = self.model.frame_keypoints(self.trunk_for_inference(), image.unsqueeze(1))  # (n, 1, 2K)
+        adapted = self._for_batch(context, keypoints.shape[0])
+        embeddings = self.adapted_embeddings(adapted, keypoints)[:, 0]
+        return self.model.action_distribution(embeddings, self.state_for_head(state, embeddings))
+
+    @staticmethod
+    def _for_batch(adapted: AdaptedWeights, n: int) -> AdaptedWeights:
+        """The adapted weights for n observations: as they are, or one demo's weights shared by all n."""
+        b = next(iter(adapted.values())).shape[0]
+        if b == n:
+            return adapted
+        if b != 1:
+            raise ValueError(f"set_demo was given {b} demos but the batch has {n} observations: give {n} demos or one.")
+        return {name: tensor.expand(n, *tensor.shape[1:]) for name, tensor in adapted.items()}
+
+    # -- training -------------------------------------------------------------------------------------------
+
+    def compute_loss(self, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
+        """Behaviour cloning of every observation frame with the weights adapted to the sample's demo."""
+        demo, obs = self.views(sample)
+        keypoints = self.model.frame_keypoints(self.model.trunk, torch.cat([demo, obs], dim=1))
+        d = demo.shape[1]
+        adapted, loss_before = self.adapt(keypoints[:, :d])
+        embeddings = self.adapted_embeddings(adapted, keypoints[:, d:])  # (B, T, E)
+        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
+        bc = self.bc_loss(distribution, sample)
+        info = {
+            "bc_loss": bc.mean().item(),
+            "adaptation_loss": loss_before.mean().item(),
+            "inner_lr": self.model.log_inner_lr.exp().mean().item(),
+        }
+        return self.config.bc_loss_weight * bc, info

@@ -1,0 +1,5 @@
+"""Pre/post-processing pipelines of the mlp_osil policy: the shared ones of every demo-conditioned policy."""
+
+from ..common.processor_demo import make_demo_conditioned_pre_post_processors as make_mlp_osil_pre_post_processors
+
+__all__ = ["make_mlp_osil_pre_post_processors"]

@@ -1,0 +1,114 @@
+"""Configuration of the MOSAIC policy (multi-task one-shot imitation with self-attention and contrastive learning)."""
+
+from dataclasses import dataclass
+
+from lerobot.configs import PreTrainedConfig
+
+from ..common.configuration_demo import DemoConditionedConfig
+
+CONTRASTIVE_PLACEMENTS = ("off", "before", "after", "both")
+POSITIVE_MODES = ("window", "fixed", "same")
+CONTRASTIVE_OBJECTIVES = ("infonce", "byol")
+ATTENTION_PATTERNS = ("mosaic", "full")
+
+
+@PreTrainedConfig.register_subclass("mosaic")
+@dataclass
+class MosaicConfig(DemoConditionedConfig):
+    """Configuration of the MOSAIC policy (the shared options of every demo-conditioned policy, then MOSAIC's).
+
+    The defaults are the paper's single-task settings. Options a user most likely changes: `demo_repo_id` (the
+    demonstrator dataset paired with `--dataset.repo_id`), `n_attention_layers` (2 single-task, 3 multi-task)
+    and `contrastive` (ablations). The contrastive positive lies within +-`positive_window` observation frames
+    (0.5 s at the default time scale).
+
+    Args:
+        - n_attention_layers: Non-local attention layers (paper: 2 single-task, 3 multi-task).
+        - n_attention_heads: Heads per attention layer.
+        - attention_temperature: Softmax temperature dividing query-key dot products (paper: 16).
+        - attention_pattern: "mosaic" (demo self-attends; each observation frame attends to its own tokens and
+            the demo tokens) or "full" (every frame also attends to the earlier observation frames of its sample,
+            causally: T-OSIL's pattern inside MOSAIC, for the ablation; acts with a memory of past frames).
+        - attention_dropout: Dropout on attention outputs.
+        - contrastive_loss_weight: Weight of the contrastive loss(es) (paper: 1).
+        - contrastive: Where the temporal contrastive loss applies: "off", "before" / "after" attention, "both".
+        - contrastive_objective: "infonce" (bilinear similarity, all other frames of the batch are negatives)
+            or "byol" (no negatives: cosine between predictor output and target projection).
+        - contrastive_positive: "window" (random frame within +-positive_window steps), "fixed" (the frame
+            exactly positive_window steps away) or "same" (the same frame; the two views differ only by
+            augmentation).
+        - positive_window: k of the positive modes above, in observation frames (`frame_stride` dataset frames each).
+        - contrastive_dim, contrastive_hidden_dim: Projector / predictor output and hidden widths.
+        - contrastive_temperature: InfoNCE temperature applied to the bilinear logits of normalised vectors.
+        - ema_momentum: Initial momentum of the EMA target encoder (rises to 1 with a cosine schedule).
+        - ema_total_steps: Steps over which the momentum reaches 1; by default the run's `--steps`, which
+            lerobot-train tells the policy's scheduler preset (fine-tuning a checkpoint starts a new schedule,
+            `--resume` continues it to the new `--steps`).
+    """
+
+    # Attention: 2 layers single-task, 3 multi-task (paper).
+    n_attention_layers: int = 2
+    # Heads per attention layer.
+    n_attention_heads: int = 4
+    # Softmax temperature dividing query-key dot products (paper: 16).
+    attention_temperature: float = 16.0
+    # "mosaic" (paper) or "full": observation frames also attend to earlier observation frames (T-OSIL's pattern).
+    attention_pattern: str = "mosaic"
+    # Dropout on attention outputs.
+    attention_dropout: float = 0.1
+
+    # Weight of the contrastive loss(es) (paper: 1).
+    contrastive_loss_weight: float = 1.0
+    # Temporal contrastive module: "off", "before" or "after" attention, or "both" (paper).
+    contrastive: str = "both"
+    # "infonce" (negatives = all other frames of the batch) or "byol" (no negatives).
+    contrastive_objective: str = "infonce"
+    # Positive: "window" (random within +-positive_window), "fixed" (exactly positive_window away), "same".
+    contrastive_positive: str = "window"
+    # k of the positive modes, in observation frames (frame_stride dataset frames each).
+    positive_window: int = 2
+    # Projector / predictor output width.
+    contrastive_dim: int = 128
+    # Projector / predictor hidden width.
+    contrastive_hidden_dim: int = 512
+    # InfoNCE temperature on the bilinear logits of L2-normalised vectors.
+    contrastive_temperature: float = 0.1
+    # Initial EMA momentum of the target encoder; rises to 1 with a cosine schedule.
+    ema_momentum: float = 0.996
+    # Steps over which the EMA momentum reaches 1 (default: the run's --steps).
+    ema_total_steps: int | None = None
+
+    def __post_init__(self):
+        super().__post_init__()
+        choices = {
+            "contrastive": CONTRASTIVE_PLACEMENTS,
+            "contrastive_positive": POSITIVE_MODES,
+            "contrastive_objective": CONTRASTIVE_OBJECTIVES,
+            "attention_pattern": ATTENTION_PATTERNS,
+        }
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(
+                    f"`{name}` must be one of {allowed}, got {getattr(self, name)!r}: "
+                    f"pass e.g. --policy.{name}={allowed[0]}."
+                )
+        for name in ("n_attention_layers", "n_attention_heads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
+        if self.attention_temperature <= 0:
+            raise ValueError(f"`attention_temperature` must be > 0, got {self.attention_temperature}.")
+        if not 0.0 <= self.ema_momentum <= 1.0:
+            raise ValueError(f"`ema_momentum` must be in [0, 1], got {self.ema_momentum}.")
+        if self.contrastive_positive != "same" and self.positive_window < 1:
+            raise ValueError(
+                f"`positive_window` must be >= 1 for contrastive_positive={self.contrastive_positive!r}, "
+                f"got {self.positive_window}; use --policy.contrastive_positive=same for k=0."
+            )
+
+    @property
+    def contrastive_before(self) -> bool:
+        return self.contrastive in ("before", "both")
+
+    @property
+    def contrastive_after(self) -> bool:
+        return self.contrastive in ("after", "both")

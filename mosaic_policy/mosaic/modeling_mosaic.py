@@ -1,0 +1,249 @@
+"""MOSAIC: one-shot imitation conditioned on a demonstrator video, with self-attention and contrastive learning.
+
+Per frame: ResNet-18 trunk (to layer3) -> + sinusoidal spatio-temporal encoding -> non-local attention
+(demo frames self-attend; every observation frame attends to its own tokens and the demo tokens) -> per-frame
+embedding -> discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head predicts
+the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA target
+encoder shapes the representation before and/or after attention.
+
+Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy` (the interface every
+demo-conditioned policy shares). Acting, the demo tokens and every layer's demo keys/values are computed once
+per episode by `set_demo` and cached; `predict_with_attention` also returns the attention weights.
+"""
+
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head, masked_mean
+from ..common.discretized_logistic import DiscretizedLogisticMixture
+from ..common.frame_features import FrameEmbedding, FrameMemory, trunk_features
+from ..common.resnet_trunk import ResNetTrunk
+from ..common.run_progress import run_progress
+from .configuration_mosaic import MosaicConfig
+from .contrastive import TemporalContrastiveModule, ema_momentum, ema_update, make_target, positive_indices
+
+DEFAULT_EMA_STEPS = 100_000
+"""EMA schedule length outside a lerobot-train run that tells it (LeRobot's default --steps)."""
+
+
+class MosaicModel(nn.Module):
+    """The online network: trunk, attention, heads and contrastive modules (no EMA target here)."""
+
+    def __init__(self, config: MosaicConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
+        super().__init__()
+        self.config = config
+        self.trunk = ResNetTrunk()
+        channels, h, w = self.trunk.feature_shape(*image_hw)
+        self.feature_shape = (channels, h, w)
+        self.attention = NonLocalAttentionStack(
+            channels,
+            config.n_attention_layers,
+            config.n_attention_heads,
+            config.attention_temperature,
+            config.attention_dropout,
+            config.attention_pattern,
+        )
+        self.embed = FrameEmbedding(channels, h, w, config.embed_dim)
+        self.state_dim = state_dim
+        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
+        self.inverse_head = make_action_head(config, 2 * config.embed_dim, action_dim)
+
+        def contrastive():
+            return TemporalContrastiveModule(
+                channels,
+                config.contrastive_dim,
+                config.contrastive_hidden_dim,
+                config.contrastive_objective,
+                config.contrastive_temperature,
+            )
+
+        self.contrastive_before = contrastive() if config.contrastive_before else None
+        self.contrastive_after = contrastive() if config.contrastive_after else None
+        d = config.n_demo_frames
+        self.register_buffer("demo_position", spatio_temporal_encoding(channels, list(range(d)), h, w), persistent=False)
+        # Every observation frame has the temporal code "current frame" (index n_demo_frames), whatever T is.
+        self.register_buffer("obs_position", spatio_temporal_encoding(channels, [d], h, w), persistent=False)
+
+    def trunk_features(self, trunk: nn.Module, frames: Tensor) -> Tensor:
+        """(B, T, 3, H, W) -> (B, C, T, h, w)."""
+        return trunk_features(trunk, frames)
+
+    def obs_position_for(self, n_frames: int) -> Tensor:
+        if self.config.attention_pattern == "full":  # frames that see each other are told apart by time
+            c, _, h, w = self.obs_position.shape
+            d = self.config.n_demo_frames
+            return spatio_temporal_encoding(c, list(range(d, d + n_frames)), h, w).to(self.obs_position)
+        return self.obs_position
+
+    def encode(
+        self, trunk: nn.Module, attention: nn.Module, demo: Tensor, obs: Tensor, return_weights: bool = False
+    ) -> dict[str, Any]:
+        """Trunk + attention for demo (B, D, 3, H, W) and observation (B, T, 3, H, W) frames."""
+        both = self.trunk_features(trunk, torch.cat([demo, obs], dim=1))
+        d = demo.shape[1]
+        demo_f, obs_f = both[:, :, :d], both[:, :, d:]
+        demo_out, obs_out, weights = attention(
+            demo_f + self.demo_position, obs_f + self.obs_position_for(obs.shape[1]), return_weights
+        )
+        return {"demo_pre": demo_f, "obs_pre": obs_f, "demo_post": demo_out, "obs_post": obs_out, "weights": weights}
+
+    def frame_embeddings(self, obs_out: Tensor) -> Tensor:
+        """(B, C, T, h, w) -> (B, T, embed_dim)."""
+        return self.embed.frames(obs_out)
+
+    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
+        if self.state_dim:
+            embeddings = torch.cat([embeddings, state], dim=-1)
+        return self.action_head(embeddings)
+
+
+def _pooled(features: Tensor) -> Tensor:
+    """(B, C, T, h, w) -> (B, T, C) spatial means."""
+    return features.mean(dim=(3, 4)).transpose(1, 2)
+
+
+class MosaicPolicy(DemoConditionedPolicy):
+    """MOSAIC as a LeRobot policy; see the module docstring."""
+
+    config_class = MosaicConfig
+    name = "mosaic"
+
+    def build(self, image_hw: tuple[int, int], state_dim: int, action_dim: int) -> None:
+        config = self.config
+        self.model = MosaicModel(config, image_hw, state_dim, action_dim)
+        # EMA target encoder (no gradients; updated in update() after every optimizer step).
+        self.target_trunk = make_target(self.model.trunk) if config.contrastive != "off" else None
+        self.target_attention = make_target(self.model.attention) if config.contrastive_after else None
+        # Optimiser steps seen by update(); the EMA schedule's clock outside a lerobot-train run that tells it
+        # (lerobot-train's scheduler restarts on fine-tuning and is restored on --resume: see run_progress).
+        self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
+        self._memory = FrameMemory(config.train_obs_frames)
+        self._last_weights: list[Tensor] = []
+
+    def reset_memory(self) -> None:
+        self._memory = FrameMemory(self.config.train_obs_frames)
+        self._last_weights = []
+
+    # -- inference ------------------------------------------------------------------------------------------
+
+    def encode_demo(self, demo: Tensor) -> list[tuple[Tensor, Tensor]]:
+        """Every attention layer's demo keys/values (the demo stream depends on the demo only)."""
+        features = self.model.trunk_features(self.trunk_for_inference(), demo) + self.model.demo_position
+        _, cache = self.model.attention.encode_demo(features)
+        return cache
+
+    @torch.no_grad()
+    def predict_with_attention(self, batch: dict[str, Tensor]) -> tuple[Tensor, list[Tensor]]:
+        """`select_action`, and the per-layer attention weights of the frame the current chunk was predicted from.
+
+        Weights: one tensor per layer, (B, heads, 1, h*w, h*w + n_demo_frames*h*w): each query location of that
+        frame over [its own h*w tokens, then the demo tokens frame by frame], row-major over (h, w);
+        `policy.model.feature_shape` gives (C, h, w). The full pattern returns no weights.
+        """
+        if not self._action_queue:
+            self._action_queue.extend(self._act(batch, return_weights=True).transpose(0, 1))
+        return self._action_queue.popleft(), self._last_weights
+
+    def _act(self, batch: dict[str, Tensor], return_weights: bool = False) -> Tensor:
+        self._ensure_demo(batch)
+        image, state = self.current_inputs(batch)
+        distribution = self._distribution(image, state, self._context, return_weights)
+        return self.actions_of(distribution)
+
+    def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Any) -> DiscretizedLogisticMixture:
+        return self._distribution(image, state, context, return_weights=False)
+
+    def _distribution(self, image: Tensor, state: Tensor | None, cache, return_weights: bool) -> DiscretizedLogisticMixture:
+        features = self.model.trunk_features(self.trunk_for_inference(), image.unsqueeze(1))
+        b = features.shape[0]
+        if cache[0][0].shape[0] != b:
+            if cache[0][0].shape[0] != 1:
+                raise ValueError(f"the demonstration was set for {cache[0][0].shape[0]} environments but the batch has {b}.")
+            cache = [(k.expand(b, -1, -1, -1), v.expand(b, -1, -1, -1)) for k, v in cache]
+        if self.config.attention_pattern == "full":  # recompute over the remembered frames, keep the current one
+            window = self._memory.push(features[:, :, 0])
+            obs = window + self.model.obs_position_for(window.shape[2])
+            obs_out, self._last_weights = self.model.attention.attend_obs_causal(obs, cache)[:, :, -1:], []
+        else:
+            obs = features + self.model.obs_position
+            obs_out, self._last_weights = self.model.attention.attend_obs(obs, cache, return_weights)
+        embeddings = self.model.frame_embeddings(obs_out)[:, 0]
+        return self.model.action_distribution(embeddings, self.state_for_head(state, embeddings))
+
+    # -- training -------------------------------------------------------------------------------------------
+
+    def compute_loss(self, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
+        cfg = self.config
+        view1_demo, view1_obs = self.views(sample)
+        online = self.model.encode(self.model.trunk, self.model.attention, view1_demo, view1_obs)
+        embeddings = self.model.frame_embeddings(online["obs_post"])  # (B, T, E)
+        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
+        bc = self.bc_loss(distribution, sample)
+        inverse = self.inverse_loss(self.model.inverse_head, embeddings, sample)
+        per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
+        info = {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}
+        if cfg.contrastive != "off" and self.training:
+            contrastive = self._contrastive_loss(online, sample.demo, sample.obs, sample.valid)
+            per_sample = per_sample + cfg.contrastive_loss_weight * contrastive
+            info["contrastive_loss"] = contrastive.mean().item()
+        return per_sample, info
+
+    def _contrastive_loss(self, online: dict, demo: Tensor, obs: Tensor, valid: Tensor) -> Tensor:
+        """Per-sample mean over its frames of the contrastive losses before and/or after attention."""
+        cfg = self.config
+        b, t = obs.shape[:2]
+        d = demo.shape[1]
+        view2_demo, view2_obs = (self.augment(demo), self.augment(obs)) if cfg.augment else (demo, obs)
+        with torch.no_grad():
+            if self.target_attention is not None:
+                target = self.model.encode(self.target_trunk, self.target_attention, view2_demo, view2_obs)
+            else:
+                both = self.model.trunk_features(self.target_trunk, torch.cat([view2_demo, view2_obs], dim=1))
+                target = {"demo_pre": both[:, :, :d], "obs_pre": both[:, :, d:]}
+
+        # Frames of a sample: its demo frames (positive: the same frame) then its observation frames.
+        obs_pos = positive_indices(b, t, cfg.contrastive_positive, cfg.positive_window, valid.cpu()).reshape(b, t)
+        obs_pos = obs_pos - (torch.arange(b)[:, None] * t)  # index within the sample's observation frames
+        local = torch.cat([torch.arange(d).expand(b, d), d + obs_pos], dim=1)  # (B, D + T)
+        positives = (torch.arange(b)[:, None] * (d + t) + local).reshape(-1).to(obs.device)
+        frame_valid = torch.cat([torch.ones(b, d, dtype=torch.bool, device=obs.device), valid], dim=1)
+
+        total = torch.zeros(b, device=obs.device)
+        for place, module in (("pre", self.model.contrastive_before), ("post", self.model.contrastive_after)):
+            if module is None:
+                continue
+            queries = torch.cat([_pooled(online[f"demo_{place}"]), _pooled(online[f"obs_{place}"])], dim=1)
+            keys = torch.cat([_pooled(target[f"demo_{place}"]), _pooled(target[f"obs_{place}"])], dim=1)
+            per_frame = module.loss(
+                queries.flatten(0, 1), module.keys(keys.flatten(0, 1)), positives, frame_valid.reshape(-1)
+            )
+            total = total + masked_mean(per_frame.reshape(b, d + t), frame_valid)
+        return total
+
+    def ema_schedule(self) -> tuple[int, int]:
+        """(step, total steps) of the EMA momentum schedule: the lerobot-train run's progress when a run told its
+        length to the scheduler preset, else the policy's own step count over `ema_total_steps` (or 100000)."""
+        progress = run_progress()
+        if progress is not None:
+            steps_taken, total = progress
+            step = max(steps_taken - 1, 0)  # lerobot-train steps the scheduler before calling update()
+        else:
+            step, total = int(self.ema_step), DEFAULT_EMA_STEPS
+        return step, self.config.ema_total_steps or total
+
+    @torch.no_grad()
+    def update(self) -> None:
+        """EMA step of the target encoder and projectors; lerobot-train calls this after every optimizer step."""
+        if self.config.contrastive == "off":
+            return
+        momentum = ema_momentum(*self.ema_schedule(), self.config.ema_momentum)
+        ema_update(self.target_trunk, self.model.trunk, momentum)
+        if self.target_attention is not None:
+            ema_update(self.target_attention, self.model.attention, momentum)
+        for module in (self.model.contrastive_before, self.model.contrastive_after):
+            if module is not None:
+                module.update_target(momentum)
+        self.ema_step += 1

@@ -1,0 +1,1 @@
+"""tosil policy: configuration_tosil.py, modeling_tosil.py, processor_tosil.py."""

@@ -1,0 +1,211 @@
+"""Every row of the paper's Table I through the same commands: `lerobot-train --policy.type=X` on tiny real
+datasets writes a checkpoint that loads with `from_pretrained`, acts in `mosaic-eval` (rows side by side, with
+the confusion matrix) and in `lerobot-eval --env.type=mosaic`, and `--help` shows the type's options."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import HEIGHT, IMAGE_KEY, POLICY_TYPES, random_batch, small_config
+
+BIN = Path(sys.executable).parent
+BASELINES = [t for t in POLICY_TYPES if t != "mosaic"]
+OWN_OPTION = {  # an option of each type's own, with its help text
+    "tosil": ("--policy.point_loss_weight", "point-prediction"),
+    "lstm_osil": ("--policy.n_lstm_layers", "Stacked LSTM layers"),
+    "mlp_osil": ("--policy.n_context_layers", "Hidden layers of the context MLP"),
+    "daml": ("--policy.inner_lr", "Initial inner learning rate"),
+}
+SMALL_FLAGS = {
+    "mosaic": ["--policy.n_attention_heads=2", "--policy.contrastive_dim=16", "--policy.contrastive_hidden_dim=32"],
+    "tosil": ["--policy.n_attention_heads=2", "--policy.point_horizon=2"],
+    "lstm_osil": ["--policy.lstm_hidden_dim=32"],
+    "mlp_osil": ["--policy.context_hidden_dim=32", "--policy.context_dim=16"],
+    "daml": ["--policy.policy_hidden_dim=32", "--policy.adapt_loss_channels=8"],
+}
+
+
+def _run(command: str, args: list[str], cwd: Path, timeout: int = 600) -> subprocess.CompletedProcess:
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
+    return subprocess.run([str(BIN / command), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("policy_type", BASELINES)
+def test_lerobot_train_help_shows_each_baselines_options(policy_type, tmp_path):
+    option, text = OWN_OPTION[policy_type]
+    result = _run("lerobot-train", [f"--policy.type={policy_type}", "--help"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert option in result.stdout and text in result.stdout
+    assert "--policy.demo_repo_id" in result.stdout  # the shared demo-conditioning options
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_every_policy_learns_a_fixed_batch_and_round_trips_through_from_pretrained(policy_type, tmp_path):
+    """The same shapes in and out for every type; 40 Adam steps lower its loss on one batch; a saved policy acts
+    exactly as the one that was saved."""
+    from mosaic_policy import policy_class
+
+    torch.manual_seed(0)
+    config = small_config(policy_type=policy_type, augment=False)
+    policy = policy_class(policy_type)(config).train()
+    batch = random_batch(config)
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=2e-3)
+    losses = []
+    for _ in range(40):
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        policy.update() if hasattr(policy, "update") else None
+        losses.append(loss.item())
+    assert losses[-1] < losses[0] * 0.9, losses
+
+    policy.eval().save_pretrained(tmp_path / "ckpt")
+    loaded = policy_class(policy_type).from_pretrained(tmp_path / "ckpt").eval()
+    demo = torch.randint(0, 255, (12, HEIGHT, 56, 3), dtype=torch.uint8)
+    frame = {IMAGE_KEY: torch.rand(2, 3, HEIGHT, 56), "observation.state": torch.randn(2, 10)}
+    chunks = []
+    for model in (policy, loaded):
+        model.reset()
+        model.set_demo(demo)
+        chunks.append(model.predict_action_chunk(frame))
+        assert model.select_action(frame).shape == (2, 7)
+    assert chunks[0].shape == (2, config.action_chunk, 7)
+    torch.testing.assert_close(chunks[0], chunks[1])
+
+
+@pytest.fixture(scope="module")
+def trained_checkpoints(door_datasets, tmp_path_factory):
+    """One `lerobot-train` run of 2 steps per policy type on the tiny door datasets: type -> pretrained_model."""
+    agent_root, demo_root = door_datasets
+    base = tmp_path_factory.mktemp("runs")
+    checkpoints = {}
+    for policy_type in POLICY_TYPES:
+        output = base / policy_type
+        result = _run(
+            "lerobot-train",
+            [
+                f"--policy.type={policy_type}",
+                "--dataset.repo_id=mosaic/door_panda",
+                f"--dataset.root={agent_root}",
+                "--policy.demo_repo_id=mosaic/door_sawyer",
+                f"--policy.demo_root={demo_root}",
+                "--policy.push_to_hub=false",
+                "--policy.device=cpu",
+                "--steps=2",
+                "--batch_size=4",
+                "--num_workers=0",
+                "--save_freq=2",
+                f"--output_dir={output}",
+                "--policy.train_obs_frames=3",
+                "--policy.embed_dim=32",
+                "--policy.head_hidden_dim=32",
+                "--policy.demo_loader_threads=1",
+                *SMALL_FLAGS[policy_type],
+            ],
+            base,
+        )
+        assert result.returncode == 0, f"{policy_type}:\n" + result.stdout[-3000:] + result.stderr[-3000:]
+        assert "[robosuite" not in result.stdout + result.stderr  # training does not load the simulator
+        checkpoints[policy_type] = output / "checkpoints" / "last" / "pretrained_model"
+    return checkpoints
+
+
+def test_every_trained_checkpoint_loads_through_lerobots_factory_and_acts(trained_checkpoints):
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    import mosaic_policy  # noqa: F401  (what the plugin import does inside lerobot-train and lerobot-eval)
+
+    for policy_type, checkpoint in trained_checkpoints.items():
+        config = PreTrainedConfig.from_pretrained(checkpoint)
+        assert config.type == policy_type and config.demo_root is None
+        policy = get_policy_class(policy_type).from_pretrained(checkpoint, config=config).eval()
+        preprocessor, postprocessor = make_pre_post_processors(config, pretrained_path=str(checkpoint))
+        policy.reset()
+        policy.set_demo(torch.randint(0, 255, (20, HEIGHT, 56, 3), dtype=torch.uint8))
+        batch = preprocessor({IMAGE_KEY: torch.rand(3, HEIGHT, 56), "observation.state": torch.randn(10), "task": "x"})
+        action = postprocessor(policy.select_action(batch))
+        assert action.shape == (1, 7) and torch.isfinite(action).all(), policy_type
+
+
+def test_mosaic_eval_puts_every_policy_side_by_side_with_its_confusion_matrix(trained_checkpoints, tmp_path):
+    output = tmp_path / "eval" / "results.json"
+    paths = [f"--policy.path={checkpoint}" for checkpoint in trained_checkpoints.values()]
+    result = _run(
+        "mosaic-eval",
+        [*paths, "--task", "door", "--variations", "0,1", "--episodes-per-variation", "1", "--max-steps", "5",
+         "--workers", "1", "--output", str(output)],
+        tmp_path,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    results = json.loads(output.read_text())
+    assert set(results["tables"]) == set(POLICY_TYPES)  # one row per policy type
+    table = output.with_suffix(".md").read_text()
+    assert all(policy_type in table for policy_type in POLICY_TYPES)
+    for policy_type in POLICY_TYPES:
+        assert (output.parent / f"confusion_door_{policy_type}.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("policy_type", BASELINES)
+def test_lerobot_eval_runs_every_baseline_on_the_mosaic_env(trained_checkpoints, policy_type, tmp_path):
+    result = _run(
+        "lerobot-eval",
+        [
+            f"--policy.path={trained_checkpoints[policy_type]}", "--env.type=mosaic", "--env.task=door",
+            "--env.variations=[0]", f"--env.observation_height={HEIGHT}", "--env.observation_width=56",
+            "--env.episode_length=4", "--eval.n_episodes=1", "--eval.batch_size=1", "--policy.device=cpu",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+        tmp_path,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
+
+
+def test_the_learning_benchmark_offers_every_policy_type():
+    from mosaic_policy import POLICY_TYPES
+    from pipelines.bench.policy_learning import POLICY_CHOICES
+
+    assert list(POLICY_CHOICES) == list(POLICY_TYPES)
+
+
+def test_policies_are_models_no_simulator_and_no_command_line():
+    """Building and running every policy type loads no simulator, and no policy reads the command line (the run's
+    length, episodes and loss weights come through LeRobot's own channels and the shared conditioning layer)."""
+    code = (
+        "import sys; import torch; from conftest import random_batch, small_config; "
+        "from mosaic_policy import POLICY_TYPES, policy_class\n"
+        "for t in POLICY_TYPES:\n"
+        "    config = small_config(policy_type=t)\n"
+        "    policy_class(t)(config).forward(random_batch(config))\n"
+        "loaded = sorted(m for m in ('robosuite', 'mujoco', 'metaworld', 'mosaic_data.tasks.base') if m in sys.modules)\n"
+        "assert not loaded, loaded\n"
+    )
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+    result = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parent, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    package = Path(__file__).parents[2] / "mosaic_policy"
+    for source in package.rglob("*.py"):
+        text = source.read_text()
+        assert "sys.argv" not in text and "parse_arg(" not in text, source
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_gradients_reach_every_trainable_parameter_and_lerobots_factory_finds_the_class(policy_type):
+    from lerobot.policies.factory import get_policy_class
+
+    from mosaic_policy import policy_class
+
+    assert get_policy_class(policy_type) is policy_class(policy_type)
+    config = small_config(policy_type=policy_type)
+    policy = policy_class(policy_type)(config).train()
+    loss, _ = policy.forward(random_batch(config, seed=1))
+    loss.backward()
+    missing = [name for name, p in policy.named_parameters() if p.requires_grad and (p.grad is None or not p.grad.abs().sum() > 0)]
+    assert not missing
