@@ -118,7 +118,7 @@ def test_the_policy_trains_without_the_simulator():
         policy = MosaicPolicy(config)
         door, drawer = VARIATIONS["door"], VARIATIONS["drawer"]
         tasks = [door[0].description, door[1].description, drawer[0].description]
-        weights = policy._sample_weights({"task": tasks}, 3, "cpu")
+        weights = policy.conditioning.sample_weights({"task": tasks}, 3, "cpu")
         assert torch.allclose(weights, torch.tensor([0.25, 0.25, 0.5])), weights
         batch = {
             "observation.images.agentview": torch.rand(3, 2, 3, 32, 56),
