@@ -23,3 +23,11 @@ def test_policy_learning_runs_every_stage_and_writes_the_curve(tmp_path):
     # the stages are the shipped tools, with their own logs
     assert "lerobot-train" in result.stdout and "mosaic-eval" in result.stdout
     assert (output / "train" / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors").is_file()
+    # runs of several policies side by side (here one): a table from the results, and a bar chart
+    table = subprocess.run(
+        [sys.executable, "-m", "pipelines.bench.learning_table", str(output), "--png", str(tmp_path / "bars.png")],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+    )
+    assert table.returncode == 0, table.stderr[-2000:]
+    assert f"| mosaic | 4 | {100 * final['success']:.0f}% |" in table.stdout
+    assert (tmp_path / "bars.png").stat().st_size > 10_000

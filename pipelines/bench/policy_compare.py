@@ -86,7 +86,7 @@ def measure(policy_type: str, args: argparse.Namespace) -> dict:
     policy = policy_class(policy_type)(config)
     row = {"policy": policy_type, "parameters": trainable_parameters(policy)}
     batch = synthetic_batch(config, args.batch_size, args.height, args.width)
-    row["train_step_s"] = time_train_steps(policy, batch, args.steps)
+    row["train_step_s"] = None if args.skip_train else time_train_steps(policy, batch, args.steps)
     row["query_ms"] = time_query(policy, args.height, args.width, args.calls)
     return row
 
@@ -101,11 +101,12 @@ def markdown(rows: list[dict], args: argparse.Namespace) -> str:
         "|---|---|---|---|",
     ]
     for row in rows:
+        step = row["train_step_s"]
+        step_cell = f"{step:.2f} s ({step / reference['train_step_s']:.2f}x)" if step else "-"
         lines.append(
             f"| {POLICY_TYPES[row['policy']]} (`{row['policy']}`) "
             f"| {row['parameters'] / 1e6:.2f} M ({row['parameters'] / reference['parameters']:.2f}x) "
-            f"| {row['train_step_s']:.2f} s ({row['train_step_s'] / reference['train_step_s']:.2f}x) "
-            f"| {row['query_ms']:.1f} ms ({row['query_ms'] / reference['query_ms']:.2f}x) |"
+            f"| {step_cell} | {row['query_ms']:.1f} ms ({row['query_ms'] / reference['query_ms']:.2f}x) |"
         )
     return "\n".join(lines)
 
@@ -120,6 +121,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--calls", type=int, default=30, help="timed queries after five warm-up queries")
     parser.add_argument("--height", type=int, default=100)
     parser.add_argument("--width", type=int, default=180)
+    parser.add_argument("--skip-train", action="store_true", help="parameters and query latency only")
     parser.add_argument("--output", type=Path, default=None, help="also write the figures as JSON here")
     args = parser.parse_args(argv)
     policies = ["mosaic"] + [p for p in args.policies if p != "mosaic"]  # the reference first
@@ -128,7 +130,8 @@ def main(argv: list[str] | None = None) -> None:
     for policy_type in policies:
         rows.append(measure(policy_type, args))
         row = rows[-1]
-        print(f"{policy_type}: {row['parameters']} parameters, step {row['train_step_s']:.2f} s, query {row['query_ms']:.1f} ms", flush=True)
+        step = f"{row['train_step_s']:.2f} s" if row["train_step_s"] else "not timed"
+        print(f"{policy_type}: {row['parameters']} parameters, step {step}, query {row['query_ms']:.1f} ms", flush=True)
     print(markdown(rows, args))
     print(f"peak resident memory: {peak_rss_gib():.2f} GiB")
     if args.output is not None:

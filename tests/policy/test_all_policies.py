@@ -209,3 +209,15 @@ def test_gradients_reach_every_trainable_parameter_and_lerobots_factory_finds_th
     loss.backward()
     missing = [name for name, p in policy.named_parameters() if p.requires_grad and (p.grad is None or not p.grad.abs().sum() > 0)]
     assert not missing
+
+
+def test_the_comparison_benchmark_prints_every_policy_as_a_ratio_to_mosaic(tmp_path, capsys):
+    from pipelines.bench.policy_compare import main
+
+    output = tmp_path / "compare.json"
+    main(["--height", "32", "--width", "56", "--batch-size", "2", "--steps", "1", "--calls", "2", "--output", str(output)])
+    table = capsys.readouterr().out
+    assert "| MOSAIC (`mosaic`) | " in table and "(1.00x)" in table
+    rows = json.loads(output.read_text())["rows"]
+    assert [row["policy"] for row in rows] == POLICY_TYPES
+    assert all(row["parameters"] > 0 and row["train_step_s"] > 0 and row["query_ms"] > 0 for row in rows)
