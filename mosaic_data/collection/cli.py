@@ -101,6 +101,13 @@ def cmd_view(args: argparse.Namespace) -> int:
     web = WebPorts(args.web_port, args.grpc_port) if args.web else None
     message = view_episode(root, args.episode, pair=pair, pair_root=pair_root, save=args.save, web=web)
     print(message)
+    if web is not None:
+        # Served after Ctrl-C: the recording was disconnected and nothing is left to write. rerun's exit hooks
+        # (shutting its web and gRPC servers down) were seen to hang for minutes on a loaded machine, so the
+        # process ends here instead of in the interpreter's shutdown.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     return 0
 
 
