@@ -80,6 +80,8 @@ class MosaicConfig(DemoConditionedConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        if self.contrastive in (False, "False"):  # the command line's `off` is YAML's false, decoded as "False"
+            self.contrastive = "off"
         choices = {
             "contrastive": CONTRASTIVE_PLACEMENTS,
             "contrastive_positive": POSITIVE_MODES,

@@ -108,7 +108,7 @@ def write_heat_maps(folder: Path, tables: dict[str, Any]) -> list[Path]:
     for agent, table in tables.items():
         for row in table["per_task"]:
             path = heat_map_path(folder, row["task"], agent, len(tables) > 1)
-            figure = _heat_map(row["task"], agent, table["checkpoints"], row["confusion"])
+            figure = heat_map_figure(row["task"], agent, table["checkpoints"], row["confusion"])
             path.parent.mkdir(parents=True, exist_ok=True)
             figure.savefig(path, dpi=110, bbox_inches="tight")
             plt.close(figure)
@@ -116,7 +116,7 @@ def write_heat_maps(folder: Path, tables: dict[str, Any]) -> list[Path]:
     return paths
 
 
-def _heat_map(task: str, agent: str, checkpoints: list[str], matrix: dict[str, Any]):
+def heat_map_figure(task: str, agent: str, checkpoints: list[str], matrix: dict[str, Any]):
     """Cells coloured by the share of their row (rows may hold different episode counts), counts written in."""
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle

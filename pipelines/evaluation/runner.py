@@ -139,7 +139,10 @@ def _collect(processes: list, readers: list, total: int) -> Iterator[EpisodeResu
             except (EOFError, OSError):  # the worker is gone (a message cut short reads as EOF too)
                 del open_readers[index]
                 processes[index].join(timeout=5)
-                if remaining and processes[index].exitcode != 0:
+                # a worker that reported all it started and is still exiting (a loaded machine can take longer than
+                # the wait to tear torch and the renderer down) finished its share; one that dies mid-episode or
+                # exits with an error did not
+                if remaining and (index in running or processes[index].exitcode not in (0, None)):
                     raise WorkerDied(_death(processes[index], running.get(index))) from None
                 continue
             if kind == "start":

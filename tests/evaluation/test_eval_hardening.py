@@ -272,3 +272,47 @@ def test_loading_a_checkpoint_prints_nothing_through_the_progress_bar(tmp_path, 
     code, _ = _run(tmp_path, f"--policy.path={tiny_checkpoint}", *SMALL)
     assert code == 0
     assert "Loading weights" not in capfd.readouterr().out
+
+
+class _SlowToExit:
+    """A worker process that has sent everything and closed its pipe, but has not exited yet (exitcode None)."""
+
+    name, exitcode = "mosaic-eval-0", None
+
+    def join(self, timeout=None):
+        pass
+
+
+class _KilledMidEpisode(_SlowToExit):
+    exitcode = -9
+
+
+def test_a_worker_still_exiting_after_its_last_episode_is_not_taken_for_dead():
+    """A loaded machine once took more than the 5 s wait for a finished worker to exit: the evaluation failed with
+    "died (it closed its pipe but did not exit)" although every episode it started had been reported."""
+    from multiprocessing import Pipe
+
+    from pipelines.evaluation.runner import _collect
+
+    done_reader, done_writer = Pipe(duplex=False)
+    busy_reader, busy_writer = Pipe(duplex=False)
+    done_writer.send(("start", "episode 0"))
+    done_writer.send(("result", "result 0"))
+    done_writer.close()  # finished its share, still tearing down
+    busy_writer.send(("start", "episode 1"))
+    results = _collect([_SlowToExit(), _SlowToExit()], [done_reader, busy_reader], total=2)
+    assert next(results) == "result 0"
+    busy_writer.send(("result", "result 1"))
+    assert list(results) == ["result 1"]
+
+
+def test_a_worker_gone_mid_episode_is_reported_dead():
+    from multiprocessing import Pipe
+
+    from pipelines.evaluation.runner import WorkerDied, _collect
+
+    reader, writer = Pipe(duplex=False)
+    writer.send(("start", None))
+    writer.close()
+    with pytest.raises(WorkerDied, match="died"):
+        list(_collect([_KilledMidEpisode()], [reader], total=1))

@@ -1,0 +1,1 @@
+"""The paper's experiments as recipes: plans of shipped commands, resumable, reported beside the paper's numbers."""

@@ -1,0 +1,201 @@
+"""``mosaic-experiment``: the paper's experiments as one-command recipes, with tables beside the paper's numbers.
+
+    mosaic-experiment list
+    mosaic-experiment run single-task --preset cpu --output outputs/experiments/single_cpu [--tasks door,press_button]
+    mosaic-experiment run fine-tune --preset smoke --dry-run        # the exact commands, nothing run
+    mosaic-experiment report outputs/experiments/single_cpu
+
+A run is a plan of stages, each a shipped command (``mosaic-data collect``/``merge``, ``lerobot-train``,
+``mosaic-eval``) whose command line and log are kept under DIR/stages. Running it again skips finished stages;
+a killed run resumes in the stage it was in. Several recipes may share one folder (fine-tune reuses novel-task's
+models) when they use the same preset; the report covers all of them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from .presets import PRESETS, ExperimentError, ExperimentPreset, check_tasks, resolve_preset
+from .recipes import RECIPES, Plan, build_plan, check_episode_layout
+from .stages import Stage, StageFailed, experiment_lock, is_done, run_stage, stage_folder, stage_seconds
+
+EXPERIMENT_FILE = "experiment.json"
+ASSUMED_GPU_SECONDS_PER_STEP = 0.3
+"""Seconds per training step on one data-centre GPU at the paper's sizes: an assumption for the estimate the
+``paper`` preset prints, not a measurement (lerobot-train's ``updt_s`` log shows the figure of your GPU)."""
+MEASURED_ROLLOUT_STEPS_PER_S = 13.5
+"""Control steps per second per evaluation worker with MOSAIC at 100x180, measured on this project's 2-core
+machine (README, speed section): the rollout part of the estimate."""
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="mosaic-experiment", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="command", required=True)
+    commands.add_parser("list", help="the recipes and presets")
+    run = commands.add_parser("run", help="run (or resume) a recipe and write its report")
+    run.add_argument("recipe", help=f"one of {', '.join(RECIPES)}")
+    run.add_argument("--preset", default="cpu", help=f"one of {', '.join(PRESETS)} (default cpu)")
+    run.add_argument("--output", type=Path, default=None,
+                     help="experiment folder (default outputs/experiments/<recipe>_<preset>)")
+    run.add_argument("--data-dir", type=Path, default=None,
+                     help="datasets folder (default OUTPUT/data); share one between experiments of the same preset")
+    run.add_argument("--tasks", default=None, help="comma-separated tasks (default: the preset's for the recipe)")
+    run.add_argument("--seeds", type=int, default=None, help="training seeds per cell (overrides the preset)")
+    run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a preset field, e.g. --set steps=600 --set methods=mosaic,tosil")
+    run.add_argument("--dry-run", action="store_true", help="print the commands it would run, run nothing")
+    report = commands.add_parser("report", help="write DIR/results.md, results.json and figures from what has run")
+    report.add_argument("output", type=Path)
+    return parser.parse_args(argv)
+
+
+def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
+    """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours."""
+    from mosaic_data.tasks.spec import TASK_SPECS
+
+    train = [s for s in plan.stages if s.kind == "train"]
+    steps = sum(int(next(a for a in s.command if a.startswith("--steps=")).split("=")[1]) for s in train)
+    evaluations = [s for s in plan.stages if s.kind == "evaluate"]
+    rollout_steps = 0
+    for stage in evaluations:
+        task = stage.command[stage.command.index("--task") + 1]
+        episodes = int(stage.command[stage.command.index("--episodes-per-variation") + 1])
+        horizon = TASK_SPECS[task].horizon_steps
+        if "--max-steps" in stage.command:
+            horizon = min(horizon, int(stage.command[stage.command.index("--max-steps") + 1]))
+        rollout_steps += episodes * len(TASK_SPECS[task].variations) * horizon
+    workers = max(1, preset.workers)
+    text = (f"{len(plan.stages)} stages: {len(train)} training runs ({steps} steps in all), "
+            f"{len(evaluations)} evaluations (at most {rollout_steps} control steps, about "
+            f"{rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S / 3600:.1f} CPU-hours of rollouts at "
+            f"{MEASURED_ROLLOUT_STEPS_PER_S} steps/s per worker, {workers} workers)")
+    if preset.device == "cuda":
+        text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
+                 f"{ASSUMED_GPU_SECONDS_PER_STEP} s per step (not measured here)")
+    return text
+
+
+def _record_settings(output_dir: Path, args: argparse.Namespace, overrides: list[str], data_dir: Path | None) -> dict[str, Any]:
+    """DIR/experiment.json: the recipes run in DIR and their settings. Recipes sharing DIR share preset and data."""
+    path = output_dir / EXPERIMENT_FILE
+    record = json.loads(path.read_text()) if path.is_file() else {"recipes": {}}
+    mine = {"preset": args.preset, "overrides": overrides, "tasks": args.tasks.split(",") if args.tasks else None,
+            "data_dir": str(data_dir.absolute()) if data_dir else None}
+    for recipe, theirs in record["recipes"].items():
+        same = all(theirs[k] == mine[k] for k in ("preset", "overrides", "data_dir"))
+        if recipe == args.recipe and theirs != mine or not same:
+            raise ExperimentError(
+                f"{output_dir} holds a {recipe} run with other settings ({theirs['preset']} {' '.join(theirs['overrides'])}): "
+                "rerun it with the same options to resume, or use another --output"
+            )
+    record["recipes"][args.recipe] = mine
+    output_dir.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=2))
+    return record
+
+
+def _check_fraction_data(stage: Stage, episodes_per_variation: int) -> None:
+    """A training run on a fraction of a dataset: the dataset must be numbered as the plan assumed."""
+    if not any(a.startswith("--dataset.episodes=") for a in stage.command):
+        return
+    root = Path(next(a for a in stage.command if a.startswith("--dataset.root=")).split("=", 1)[1])
+    repo = next(a for a in stage.command if a.startswith("--dataset.repo_id=")).split("=", 1)[1]
+    check_episode_layout(root, repo.split("/")[1].removesuffix("_panda"), episodes_per_variation)
+
+
+def run(args: argparse.Namespace) -> int:
+    overrides = list(args.overrides) + ([f"seeds={args.seeds}"] if args.seeds is not None else [])
+    preset = resolve_preset(args.preset, overrides)
+    tasks = check_tasks(args.tasks.split(",")) if args.tasks else None
+    output_dir = (args.output or Path("outputs/experiments") / f"{args.recipe}_{args.preset}").absolute()
+    plan = build_plan(args.recipe, preset, output_dir, args.data_dir, tasks)
+    print(f"mosaic-experiment {args.recipe}, preset {args.preset}: {estimate_text(plan, preset)}", flush=True)
+    if args.dry_run:
+        for stage in plan.stages:
+            state = " (done)" if is_done(output_dir, stage) else ""
+            print(f"\n# {stage.title}{state}\n{stage.shell_line()}")
+        return 0
+    with experiment_lock(output_dir):
+        _record_settings(output_dir, args, overrides, args.data_dir)
+        total = len(plan.stages)
+        for number, stage in enumerate(plan.stages, 1):
+            prefix = f"[{number}/{total}] {stage.title}"
+            if is_done(output_dir, stage):
+                print(f"{prefix}: done before, skipped", flush=True)
+                continue
+            resume = (stage_folder(output_dir, stage) / "command.txt").is_file()
+            if stage.kind == "train":
+                _check_fraction_data(stage, preset.episodes)
+            print(f"{prefix}{' (resuming)' if resume else ''} ...", flush=True)
+            seconds = run_stage(output_dir, stage, resume)
+            print(f"  done in {seconds / 60:.1f} min", flush=True)
+    paths = report(output_dir)
+    print(f"results: {paths['markdown']} (and results.json, figures/)")
+    return 0
+
+
+def report(output_dir: Path) -> dict[str, Path]:
+    from .report import write_report
+
+    path = output_dir / EXPERIMENT_FILE
+    if not path.is_file():
+        raise ExperimentError(f"{output_dir} holds no mosaic-experiment run: run `mosaic-experiment run RECIPE --output {output_dir}` first")
+    record = json.loads(path.read_text())
+    entries = []
+    for recipe, settings in record["recipes"].items():
+        preset = resolve_preset(settings["preset"], settings["overrides"])
+        plan = build_plan(recipe, preset, output_dir, settings["data_dir"],
+                          tuple(settings["tasks"]) if settings["tasks"] else None)
+        seconds: dict[str, float] = {}
+        for stage in plan.stages:
+            seconds[stage.kind] = seconds.get(stage.kind, 0.0) + (stage_seconds(output_dir, stage) or 0.0)
+        entries.append({"recipe": recipe, "preset_name": settings["preset"], "preset": preset,
+                        "overrides": settings["overrides"], "plan": plan, "seconds": seconds})
+    return write_report(output_dir, entries)
+
+
+def list_recipes() -> int:
+    print("recipes:")
+    for name, (_, _, description) in RECIPES.items():
+        print(f"  {name:12s} {description}")
+    print("presets:")
+    for name, p in PRESETS.items():
+        print(f"  {name:6s} {p.image_size}, {p.episodes} episodes per variation and robot, {p.steps} steps at batch "
+              f"{p.batch_size}, {p.seeds} seed(s), last {p.eval_checkpoints} checkpoint(s) x {p.eval_episodes} "
+              f"episodes per variation, device {p.device}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        if args.command == "list":
+            return list_recipes()
+        if args.command == "report":
+            paths = report(args.output.absolute())
+            print(f"results: {paths['markdown']} (and results.json, figures/)")
+            return 0
+        return run(args)
+    except ExperimentError as error:
+        print(f"mosaic-experiment: {error}", file=sys.stderr)
+        return 2
+    except StageFailed as error:
+        print(f"{error}\nmosaic-experiment: fix the cause and run the same command again: finished stages are kept",
+              file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\nmosaic-experiment: interrupted; run the same command again to resume", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # `mosaic-experiment run ... --dry-run | head`: the reader has all it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

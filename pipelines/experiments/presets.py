@@ -1,0 +1,140 @@
+"""Sizes of an experiment: how much data, how long to train, how much to evaluate.
+
+``paper`` is the paper's protocol; ``cpu`` scales it down to finish on a 2-core machine in hours; ``smoke`` runs a
+whole recipe end to end in minutes (nothing is learned: it checks the plumbing, as CI does). Any field can be
+overridden on the command line (``--set steps=200``), and the overrides are recorded with the results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+from mosaic_data.tasks.spec import TASK_NAMES
+
+POLICY_TYPES = ("mosaic", "tosil", "lstm_osil", "mlp_osil", "daml")
+"""MOSAIC and the paper's baselines, in Table I's column order (mosaic_policy.POLICY_TYPES, without torch)."""
+
+
+class ExperimentError(ValueError):
+    """Bad experiment input (recipe, preset, task, override, output folder): the message names the fix."""
+
+
+@dataclass(frozen=True)
+class ExperimentPreset:
+    """Data, training and evaluation budgets shared by every recipe."""
+
+    image_size: str = "100x180"
+    episodes: int = 100  # collected per variation and robot
+    steps: int = 40_000  # training steps of a model trained from scratch
+    batch_size: int = 30
+    train_obs_frames: int = 7
+    save_every: int = 10_000
+    eval_checkpoints: int = 3  # the last K saved checkpoints of each run are evaluated
+    eval_episodes: int = 10  # per variation and checkpoint
+    eval_max_steps: int = 0  # cap on an evaluation episode (0: the task's horizon)
+    seeds: int = 3  # training seeds per cell
+    methods: tuple[str, ...] = POLICY_TYPES  # Table I's columns
+    single_task_tasks: tuple[str, ...] = TASK_NAMES
+    multi_task_tasks: tuple[str, ...] = TASK_NAMES
+    novel_task_pool: tuple[str, ...] = TASK_NAMES  # a novel-task model trains on this pool minus the held-out task
+    novel_task_tasks: tuple[str, ...] = TASK_NAMES  # held-out tasks
+    fine_tune_tasks: tuple[str, ...] = TASK_NAMES
+    fine_tune_methods: tuple[str, ...] = ("mosaic",)
+    fine_tune_fractions: tuple[int, ...] = (25, 50, 75, 100)  # % of the held-out task's episodes per variation
+    fine_tune_steps: int = 20_000
+    fine_tune_save_every: int = 5_000
+    ablation_tasks: tuple[str, ...] = ("door",)
+    workers: int = 2  # collection and evaluation processes
+    device: str = "cpu"  # --policy.device of lerobot-train
+    num_workers: int = 2  # lerobot-train data loader workers
+
+    def to_json(self) -> dict[str, Any]:
+        return {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(self).items()}
+
+
+PRESETS: dict[str, ExperimentPreset] = {
+    "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
+    # About an hour of training per model on 2 cores (batch 16 at 48x88); novel-task models train on 3 tasks.
+    "cpu": ExperimentPreset(
+        image_size="48x88", episodes=40, steps=2700, batch_size=16, save_every=900, eval_checkpoints=1,
+        eval_episodes=10, seeds=1, single_task_tasks=("door", "press_button"), multi_task_tasks=("door", "drawer", "press_button"),
+        novel_task_pool=("door", "drawer", "press_button"), novel_task_tasks=("door",), fine_tune_tasks=("door",),
+        fine_tune_steps=900, fine_tune_save_every=300, num_workers=1,
+    ),
+    # Minutes, end to end; CI runs single-task and fine-tune with it.
+    "smoke": ExperimentPreset(
+        image_size="32x56", episodes=2, steps=2, batch_size=4, train_obs_frames=2, save_every=2, eval_checkpoints=1,
+        eval_episodes=1, eval_max_steps=8, seeds=1, single_task_tasks=("door",), multi_task_tasks=("door", "press_button"),
+        novel_task_pool=("door", "press_button"), novel_task_tasks=("door",), fine_tune_tasks=("door",),
+        fine_tune_fractions=(50, 100), fine_tune_steps=2, fine_tune_save_every=1, ablation_tasks=("door",),
+        num_workers=0,
+    ),
+}
+
+
+def _parse_value(name: str, current: Any, text: str) -> Any:
+    if isinstance(current, tuple):
+        items = [item for item in text.split(",") if item]
+        return tuple(int(item) for item in items) if current and isinstance(current[0], int) else tuple(items)
+    if isinstance(current, int):
+        return int(text)
+    return text
+
+
+def resolve_preset(name: str, overrides: list[str]) -> ExperimentPreset:
+    """The preset ``name`` with ``key=value`` overrides (lists comma-separated); ExperimentError on a bad one."""
+    if name not in PRESETS:
+        raise ExperimentError(f"unknown preset {name!r}: choose one of {', '.join(PRESETS)}")
+    preset = PRESETS[name]
+    known = {field.name for field in fields(ExperimentPreset)}
+    changes: dict[str, Any] = {}
+    for override in overrides:
+        key, sep, text = override.partition("=")
+        if not sep or key not in known:
+            raise ExperimentError(
+                f"bad --set {override!r}: use KEY=VALUE with KEY one of {', '.join(sorted(known))}"
+            )
+        try:
+            changes[key] = _parse_value(key, getattr(preset, key), text)
+        except ValueError:
+            raise ExperimentError(f"bad --set {override!r}: {key} takes {type(getattr(preset, key)).__name__} values") from None
+    resolved = replace(preset, **changes)
+    check_preset(resolved)
+    return resolved
+
+
+def check_preset(preset: ExperimentPreset) -> None:
+    """One clear line for budgets that cannot run (unknown tasks or methods, no checkpoint to evaluate)."""
+    for key in ("single_task_tasks", "multi_task_tasks", "novel_task_pool", "novel_task_tasks", "fine_tune_tasks", "ablation_tasks"):
+        check_tasks(getattr(preset, key), f"preset {key}")
+    for key in ("methods", "fine_tune_methods"):
+        unknown = [m for m in getattr(preset, key) if m not in POLICY_TYPES]
+        if unknown or not getattr(preset, key):
+            raise ExperimentError(f"preset {key} {','.join(unknown) or '(empty)'}: choose from {', '.join(POLICY_TYPES)}")
+    for key in ("episodes", "steps", "batch_size", "save_every", "eval_checkpoints", "eval_episodes", "seeds",
+                "fine_tune_steps", "fine_tune_save_every", "workers"):
+        if getattr(preset, key) < 1:
+            raise ExperimentError(f"preset {key}={getattr(preset, key)}: it must be at least 1")
+    if any(not 0 < f <= 100 for f in preset.fine_tune_fractions) or not preset.fine_tune_fractions:
+        raise ExperimentError(f"preset fine_tune_fractions={preset.fine_tune_fractions}: give percentages in 1..100")
+    height, _, width = preset.image_size.partition("x")
+    if not (height.isdigit() and width.isdigit()):
+        raise ExperimentError(f"preset image_size={preset.image_size!r}: write it HxW, e.g. 100x180")
+
+
+def check_tasks(tasks: tuple[str, ...] | list[str], what: str = "--tasks") -> tuple[str, ...]:
+    unknown = [task for task in tasks if task not in TASK_NAMES]
+    if unknown or not tasks:
+        raise ExperimentError(
+            f"{what}: unknown task {', '.join(map(repr, unknown)) or '(none given)'}: choose from {', '.join(TASK_NAMES)}"
+        )
+    return tuple(tasks)
+
+
+def saved_steps(steps: int, save_every: int) -> list[int]:
+    """Steps at which lerobot-train saves a checkpoint: every ``save_every`` and the last one."""
+    saved = list(range(save_every, steps + 1, save_every))
+    if not saved or saved[-1] != steps:
+        saved.append(steps)
+    return saved

@@ -1,0 +1,271 @@
+"""results.md, results.json and PNG figures of an experiment folder, from the evaluations its plans list.
+
+A table cell is one (method or variant, task): each training seed's success is the mean of its last
+``eval_checkpoints`` checkpoints (each ``eval_episodes`` episodes per variation, on mosaic-eval's held-out
+instances), and the cell is the mean +- std over seeds. The paper's published number stands beside it, labelled
+"paper"; "n/r" where it is not on record (:mod:`.paper_results`). Cells whose evaluations have not run yet say
+how many are missing: numbers come only from runs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mosaic_data.atomic_files import write_bytes_atomically
+from mosaic_data.collection.metadata import write_json_atomically
+
+from .paper_results import SOURCES, paper_number
+from .presets import ExperimentPreset
+from .recipes import ABLATIONS, Evaluation, Plan
+
+TABLE_TITLES = {
+    "single-task": "Table I, single-task: trained and evaluated on each task",
+    "multi-task": "Table I, multi-task: one model on all tasks, evaluated per task",
+    "novel-task": "Table II, No Training: trained on the other tasks, one-shot on the held-out task",
+    "fine-tune": "Table II, Fine-tune: the novel-task model fine-tuned on all of the held-out task's data",
+    "ablations": "Appendix ablations: MOSAIC with one option changed",
+}
+METHOD_NAMES = {"mosaic": "MOSAIC", "tosil": "T-OSIL", "lstm_osil": "LSTM", "mlp_osil": "MLP", "daml": "DAML"}
+
+
+@dataclass
+class CellResult:
+    table: str
+    row: str
+    task: str
+    fraction: int | None = None
+    mode: str | None = None
+    per_seed: dict[int, float] = field(default_factory=dict)
+    episodes: int = 0
+    missing: int = 0  # planned evaluations without results yet
+    confusion: list[list[int]] | None = None
+    confusion_rows: list[int] | None = None
+    confusion_columns: list[Any] | None = None
+    wrong_variation_episodes: int = 0
+
+    @property
+    def mean(self) -> float | None:
+        return float(np.mean(list(self.per_seed.values()))) if self.per_seed else None
+
+    @property
+    def std(self) -> float | None:
+        return float(np.std(list(self.per_seed.values()))) if self.per_seed else None
+
+    @property
+    def paper(self) -> float | None:
+        return paper_number(self.table, self.row, self.task)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "table": self.table, "row": self.row, "task": self.task, "fraction": self.fraction, "mode": self.mode,
+            "success_per_seed": {str(seed): value for seed, value in sorted(self.per_seed.items())},
+            "mean": self.mean, "std_over_seeds": self.std, "episodes": self.episodes,
+            "missing_evaluations": self.missing, "paper": self.paper,
+            "wrong_variation_share": self.wrong_variation_episodes / self.episodes if self.episodes else None,
+            "confusion": None if self.confusion is None else {
+                "rows": self.confusion_rows, "columns": self.confusion_columns, "counts": self.confusion},
+        }
+
+
+def read_evaluation(evaluation: Evaluation) -> dict[str, Any] | None:
+    """The task row of one mosaic-eval results.json (its only agent: the checkpoint), None before it ran."""
+    if not evaluation.results.is_file():
+        return None
+    results = json.loads(evaluation.results.read_text())
+    if results.get("partial"):  # an evaluation that stopped early: its stage reruns it, the report waits for it
+        return None
+    table = next(iter(results["tables"].values()))
+    return next((row for row in table["per_task"] if row["task"] == evaluation.task), None)
+
+
+def cells_of(plan: Plan) -> list[CellResult]:
+    """Every table cell of a plan, from the final checkpoints' evaluations."""
+    cells: dict[tuple, CellResult] = {}
+    per_seed_checkpoints: dict[tuple, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for evaluation in plan.evaluations:
+        if not evaluation.final:
+            continue
+        key = (evaluation.table, evaluation.row, evaluation.task, evaluation.fraction, evaluation.mode)
+        cell = cells.setdefault(key, CellResult(*key))
+        row = read_evaluation(evaluation)
+        if row is None:
+            cell.missing += 1
+            continue
+        per_seed_checkpoints[key][evaluation.seed].append(row["mean"])
+        cell.episodes += row["episodes"]
+        matrix = row["confusion"]
+        counts = np.array(matrix["counts"])
+        cell.confusion = (np.array(cell.confusion) + counts).tolist() if cell.confusion is not None else counts.tolist()
+        cell.confusion_rows, cell.confusion_columns = matrix["rows"], matrix["columns"]
+        cell.wrong_variation_episodes += round(matrix["wrong_variation_share"] * row["episodes"])
+    for key, seeds in per_seed_checkpoints.items():
+        cells[key].per_seed = {seed: float(np.mean(values)) for seed, values in seeds.items()}
+    return list(cells.values())
+
+
+def curves_of(plan: Plan) -> list[dict[str, Any]]:
+    """Fine-tuning curves: one-shot success of every saved checkpoint, mean +- std over seeds, per run family."""
+    points: dict[tuple, dict[int, dict[int, float]]] = defaultdict(lambda: defaultdict(dict))
+    for evaluation in plan.evaluations:
+        if evaluation.table != "fine-tune":
+            continue
+        row = read_evaluation(evaluation)
+        if row is not None:
+            key = (evaluation.task, evaluation.row, evaluation.mode, evaluation.fraction)
+            points[key][evaluation.step][evaluation.seed] = row["mean"]
+    # a fine-tuning curve starts from the model it fine-tunes: the novel-task model's own evaluation, at step 0
+    for evaluation in plan.evaluations:
+        if evaluation.table == "novel-task" and evaluation.final:
+            row = read_evaluation(evaluation)
+            for (task, method, mode, _), by_step in points.items():
+                if row is not None and mode == "fine-tune" and (task, method) == (evaluation.task, evaluation.row):
+                    by_step[0][evaluation.seed] = row["mean"]
+    curves = []
+    for (task, method, mode, fraction), by_step in sorted(points.items(), key=lambda item: str(item[0])):
+        curves.append({
+            "task": task, "method": method, "mode": mode, "fraction": fraction,
+            "steps": sorted(by_step),
+            "mean": [float(np.mean(list(by_step[s].values()))) for s in sorted(by_step)],
+            "std": [float(np.std(list(by_step[s].values()))) for s in sorted(by_step)],
+            "seeds": [len(by_step[s]) for s in sorted(by_step)],
+        })
+    return curves
+
+
+def _percent(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f}"
+
+
+def cell_text(cell: CellResult | None) -> str:
+    """``"25.0 +- 5.0 (paper 67.1)"``; what is missing says so."""
+    if cell is None:
+        return "-"
+    if cell.mean is None:
+        ours = f"not run ({cell.missing} evaluations to go)"
+    else:
+        ours = f"{_percent(cell.mean)} +- {_percent(cell.std)}"
+        if cell.missing:
+            ours += f" ({cell.missing} evaluations to go)"
+    paper = "n/r" if cell.paper is None else f"{cell.paper:.1f}"
+    return f"{ours} (paper {paper})"
+
+
+def _row_name(table: str, row: str) -> str:
+    if table == "ablations":
+        group, _ = ABLATIONS[row]
+        return f"{row} ({group})"
+    return METHOD_NAMES.get(row, row)
+
+
+def markdown_table(cells: list[CellResult], table: str, fraction: int | None = None, mode: str | None = None) -> str:
+    chosen = [c for c in cells if c.table == table and c.fraction == fraction and c.mode == mode]
+    tasks = list(dict.fromkeys(c.task for c in chosen))
+    rows = list(dict.fromkeys(c.row for c in chosen))
+    by_key = {(c.row, c.task): c for c in chosen}
+    lines = ["| | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
+    for row in rows:
+        lines.append(f"| {_row_name(table, row)} | " + " | ".join(cell_text(by_key.get((row, t))) for t in tasks) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def fraction_table(cells: list[CellResult]) -> str:
+    """Rows: method, mode and data fraction; columns: held-out tasks."""
+    chosen = sorted((c for c in cells if c.table == "fine-tune"), key=lambda c: (c.row, c.fraction, c.mode != "fine-tune"))
+    tasks = list(dict.fromkeys(c.task for c in chosen))
+    rows = list(dict.fromkeys((c.row, c.mode, c.fraction) for c in chosen))
+    by_key = {(c.row, c.mode, c.fraction, c.task): c for c in chosen}
+    lines = ["| | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
+    for row, mode, fraction in rows:
+        name = f"{METHOD_NAMES.get(row, row)}, {'fine-tuned' if mode == 'fine-tune' else 'from scratch'}, {fraction}% data"
+        lines.append(f"| {name} | " + " | ".join(cell_text(by_key.get((row, mode, fraction, t))) for t in tasks) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def wrong_variation_table(cells: list[CellResult]) -> str:
+    lines = ["| table | row | task | episodes | one-shot success | did another variation | confusion |",
+             "|---|---|---|---|---|---|---|"]
+    for cell in cells:
+        if cell.episodes:
+            share = cell.wrong_variation_episodes / cell.episodes
+            label = cell.row + (f", {cell.mode} {cell.fraction}%" if cell.fraction else "")
+            lines.append(f"| {cell.table} | {label} | {cell.task} | {cell.episodes} | {_percent(cell.mean)}% | "
+                         f"{100 * share:.0f}% | [png](figures/{confusion_name(cell)}) |")
+    return "\n".join(lines) + "\n"
+
+
+def confusion_name(cell: CellResult) -> str:
+    suffix = f"_{cell.mode}{cell.fraction}" if cell.fraction else ""
+    return f"confusion_{cell.table}_{cell.row}_{cell.task}{suffix}.png"
+
+
+def settings_text(preset_name: str, preset: ExperimentPreset, overrides: list[str]) -> str:
+    p = preset
+    text = (f"Preset `{preset_name}`: {p.image_size} images, {p.episodes} episodes per variation and robot, "
+            f"{p.steps} training steps at batch {p.batch_size} ({p.train_obs_frames} observation frames), "
+            f"{p.seeds} training seed(s); each seed's number is the mean of its last {p.eval_checkpoints} "
+            f"checkpoint(s) x {p.eval_episodes} one-shot episode(s) per variation on held-out instances")
+    if p.eval_max_steps:
+        text += f", episodes capped at {p.eval_max_steps} steps"
+    text += "."
+    if overrides:
+        text += " Overrides: " + ", ".join(f"`{o}`" for o in overrides) + "."
+    return text
+
+
+def write_report(output_dir: Path, entries: list[dict[str, Any]]) -> dict[str, Path]:
+    """Write DIR/results.md, DIR/results.json and DIR/figures/*.png for the recipes run in DIR.
+
+    ``entries``: per recipe run in the folder, {"recipe", "preset_name", "preset", "overrides", "plan",
+    "seconds"} (seconds per stage kind, from the stages' done markers)."""
+    from .figures import plot_bars, plot_confusion, plot_fine_tune
+
+    figures_dir = output_dir / "figures"
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    lines = ["# mosaic-experiment: one-shot success (%)\n",
+             "Cells: ours, mean +- std over training seeds, then the paper's published number (paper); "
+             "n/r: the paper's number is not on record in this toolkit. Numbers come only from runs in this folder.\n"]
+    summary: dict[str, Any] = {"recipes": []}
+    for entry in entries:
+        plan: Plan = entry["plan"]
+        cells, curves = cells_of(plan), curves_of(plan)
+        table = plan.recipe
+        lines.append(f"\n## {plan.recipe}\n\n{settings_text(entry['preset_name'], entry['preset'], entry['overrides'])}\n")
+        time_text = ", ".join(f"{kind} {seconds / 60:.1f} min" for kind, seconds in entry["seconds"].items() if seconds)
+        if time_text:
+            lines.append(f"\nTime of the finished stages on this machine: {time_text}.\n")
+        if table == "fine-tune":
+            top = max(entry["preset"].fine_tune_fractions)
+            title = TABLE_TITLES["fine-tune"] if top == 100 else f"Table II, Fine-tune, with {top}% of the held-out task's data"
+            lines.append(f"\n### {TABLE_TITLES['novel-task']}\n\n" + markdown_table(cells, "novel-task"))
+            lines.append(f"\n### {title}\n\n" + markdown_table(cells, "fine-tune", top, "fine-tune"))
+            lines.append("\n### By data fraction: fine-tuning against training from scratch (last checkpoints)\n\n")
+            lines.append(fraction_table(cells))
+            for path in plot_fine_tune(curves, figures_dir):
+                lines.append(f"\n![fine-tuning curve](figures/{path.name})\n")
+        else:
+            lines.append(f"\n### {TABLE_TITLES[table]}\n\n")
+            lines.append(markdown_table(cells, table))
+            bars = plot_bars(cells, table, figures_dir / f"bars_{table}.png")
+            if bars:
+                lines.append(f"\n![{table} against the paper](figures/{bars.name})\n")
+        lines.append(f"\nPaper numbers: {SOURCES[table]}.\n\n### Which variation the agent did\n\n")
+        lines.append(wrong_variation_table(cells))
+        for cell in cells:
+            if cell.confusion is not None:
+                plot_confusion(cell, figures_dir / confusion_name(cell))
+        summary["recipes"].append({
+            "recipe": plan.recipe, "preset": entry["preset_name"], "settings": entry["preset"].to_json(),
+            "overrides": entry["overrides"], "seconds": entry["seconds"],
+            "cells": [cell.to_json() for cell in cells], "curves": curves,
+            "paper_source": SOURCES[table],
+        })
+    markdown_path, json_path = output_dir / "results.md", output_dir / "results.json"
+    write_bytes_atomically(markdown_path, "".join(lines).encode())
+    write_json_atomically(json_path, summary)
+    return {"markdown": markdown_path, "json": json_path, "figures": figures_dir}

@@ -1,0 +1,139 @@
+"""Recipe plans without running them: deterministic commands, dry runs, presets, clear errors for bad names."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mosaic_data.tasks.spec import TASK_NAMES, VARIATIONS
+from pipelines.experiments import cli
+from pipelines.experiments.presets import PRESETS, ExperimentError, resolve_preset
+from pipelines.experiments.recipes import RECIPES, build_plan, episodes_fraction
+
+EXPERIMENT = [sys.executable, "-m", "pipelines.experiments.cli"]
+
+
+@pytest.mark.parametrize("recipe", list(RECIPES))
+@pytest.mark.parametrize("preset_name", list(PRESETS))
+def test_the_same_arguments_give_the_same_commands(recipe, preset_name, tmp_path):
+    preset = resolve_preset(preset_name, [])
+    first = build_plan(recipe, preset, tmp_path / "exp")
+    second = build_plan(recipe, resolve_preset(preset_name, []), tmp_path / "exp")
+    assert [s.command for s in first.stages] == [s.command for s in second.stages]
+    assert len({s.key for s in first.stages}) == len(first.stages)
+    kinds = [s.kind for s in first.stages]
+    assert kinds.count("train") >= 1 and kinds.count("evaluate") >= 1
+    # every stage runs only after what it reads has been made: datasets before training, training before evaluation
+    made = set()
+    for stage in first.stages:
+        reads = [Path(a.split("=", 1)[1]) for a in stage.command if a.startswith(("--dataset.root=", "--policy.path="))]
+        for path in reads:
+            assert any(path == m or m in path.parents for m in made), f"{stage.key} reads {path} before it is made"
+        made.add(stage.output)
+
+
+def test_paper_preset_is_the_papers_protocol(tmp_path):
+    paper = PRESETS["paper"]
+    assert (paper.image_size, paper.episodes, paper.batch_size, paper.seeds) == ("100x180", 100, 30, 3)
+    assert (paper.eval_checkpoints, paper.eval_episodes) == (3, 10)
+    plan = build_plan("single-task", paper, tmp_path)
+    trains = [s for s in plan.stages if s.kind == "train"]
+    assert len(trains) == len(TASK_NAMES) * 5 * 3  # tasks x methods x seeds
+    evaluations = [s for s in plan.stages if s.kind == "evaluate"]
+    assert len(evaluations) == len(trains) * 3  # the last three checkpoints of every run
+    assert all("--policy.device=cuda" in s.command for s in trains)
+    multi = build_plan("multi-task", paper, tmp_path)
+    mosaic = next(s for s in multi.stages if s.kind == "train" and "--policy.type=mosaic" in s.command)
+    assert "--policy.n_attention_layers=3" in mosaic.command
+    assert any(s.kind == "merge" for s in multi.stages)
+
+
+def test_novel_task_models_never_see_the_held_out_task(tmp_path):
+    plan = build_plan("novel-task", PRESETS["paper"], tmp_path, tasks=("door",))
+    merges = [s for s in plan.stages if s.kind == "merge"]
+    assert merges and all("door_" not in " ".join(s.command[6:]) for s in merges)
+    assert {s.command[s.command.index("--task") + 1] for s in plan.stages if s.kind == "evaluate"} == {"door"}
+
+
+def test_fine_tune_fractions_select_the_first_episodes_of_every_variation(tmp_path):
+    assert episodes_fraction("door", 4, 50) == [0, 1, 4, 5, 8, 9, 12, 13]
+    assert len(episodes_fraction("pick_place", 100, 25)) == 25 * len(VARIATIONS["pick_place"])
+    plan = build_plan("fine-tune", PRESETS["paper"], tmp_path, tasks=("door",))
+    trains = [s for s in plan.stages if s.key.startswith("train/fine-tune/")]
+    assert len(trains) == 4 * 2 * 3  # fractions x (fine-tune, scratch) x seeds
+    fine = next(s for s in trains if "fine-tune-25/seed1" in s.key)
+    assert any(a.startswith("--policy.path=") and "novel-task/door/mosaic/seed1" in a for a in fine.command)
+    scratch = next(s for s in trains if "scratch-25/seed1" in s.key)
+    assert "--policy.type=mosaic" in scratch.command
+    selection = next(a for a in fine.command if a.startswith("--dataset.episodes="))
+    assert selection == next(a for a in scratch.command if a.startswith("--dataset.episodes="))
+
+
+def test_dry_run_prints_the_commands_and_writes_nothing(tmp_path, capsys):
+    output = tmp_path / "exp"
+    assert cli.main(["run", "single-task", "--preset", "smoke", "--output", str(output), "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    plan = build_plan("single-task", PRESETS["smoke"], output)
+    for stage in plan.stages:
+        assert stage.shell_line() in printed
+    assert not output.exists()
+
+
+def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
+    cli.main(["run", "single-task", "--preset", "paper", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
+    assert "GPU-hours" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["run", "single-tsk"], "unknown recipe 'single-tsk': choose one of single-task"),
+        (["run", "single-task", "--preset", "huge"], "unknown preset 'huge': choose one of paper"),
+        (["run", "single-task", "--tasks", "door,dor"], "unknown task 'dor': choose from door"),
+        (["run", "single-task", "--set", "stepz=3"], "bad --set 'stepz=3': use KEY=VALUE"),
+        (["run", "single-task", "--set", "steps=many"], "bad --set 'steps=many': steps takes int values"),
+        (["run", "single-task", "--set", "methods=mosaic,act"], "preset methods act: choose from mosaic"),
+        (["report", "/nonexistent/exp"], "holds no mosaic-experiment run"),
+    ],
+)
+def test_bad_names_give_one_clear_line(arguments, message, tmp_path):
+    result = subprocess.run([*EXPERIMENT, *arguments, *(["--dry-run"] if arguments[0] == "run" else [])],
+                            capture_output=True, text=True, cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_a_folder_keeps_one_preset(tmp_path):
+    output = tmp_path / "exp"
+    args = cli.parse_args(["run", "single-task", "--preset", "smoke", "--output", str(output)])
+    cli._record_settings(output, args, [], None)
+    other = cli.parse_args(["run", "fine-tune", "--preset", "cpu", "--output", str(output)])
+    with pytest.raises(ExperimentError, match="holds a single-task run with other settings"):
+        cli._record_settings(output, other, [], None)
+    same = cli.parse_args(["run", "fine-tune", "--preset", "smoke", "--output", str(output)])
+    record = cli._record_settings(output, same, [], None)
+    assert set(record["recipes"]) == {"single-task", "fine-tune"}
+    assert json.loads((output / "experiment.json").read_text()) == record
+
+
+def test_an_interrupted_stage_resumes_where_it_can(tmp_path):
+    from pipelines.experiments.stages import resume_command
+
+    plan = build_plan("multi-task", PRESETS["smoke"], tmp_path)
+    train = next(s for s in plan.stages if s.kind == "train")
+    assert resume_command(train) == train.command  # nothing written yet: start it
+    (train.output / "logs").mkdir(parents=True)
+    assert resume_command(train) == train.command and not train.output.exists()  # no checkpoint: start over, cleanly
+    config = train.output / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    config.parent.mkdir(parents=True)
+    config.write_text("{}")
+    assert resume_command(train) == ("lerobot-train", "--resume=true", f"--config_path={config}")
+    merge = next(s for s in plan.stages if s.kind == "merge")
+    merge.output.mkdir(parents=True)
+    assert resume_command(merge) == (*merge.command, "--overwrite")  # replaces what it half built

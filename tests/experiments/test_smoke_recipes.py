@@ -1,0 +1,103 @@
+"""The smoke preset end to end with the real tools: mosaic-data collect/merge, lerobot-train, mosaic-eval.
+
+CI runs these two recipes (single-task with every method, fine-tune with a kill in the middle and a resume);
+they share one data folder, as two experiments of one preset may.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipelines.experiments.presets import PRESETS
+from pipelines.experiments.recipes import build_plan
+from pipelines.experiments.stages import is_done, stage_folder
+
+EXPERIMENT = [sys.executable, "-m", "pipelines.experiments.cli"]
+METHOD_ROWS = ("MOSAIC", "T-OSIL", "LSTM", "MLP", "DAML")
+
+
+@pytest.fixture(scope="module")
+def smoke_data(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("experiment_data")
+
+
+def _run(arguments: list[str], **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([*EXPERIMENT, *arguments], capture_output=True, text=True, timeout=1200, **kwargs)
+
+
+def test_single_task_smoke_runs_every_method_and_reports_them(smoke_data, tmp_path):
+    output = tmp_path / "single"
+    arguments = ["run", "single-task", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data)]
+    result = _run(arguments)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    plan = build_plan("single-task", PRESETS["smoke"], output, smoke_data)
+    for stage in plan.stages:  # each stage kept its exact command (the dry run's) and its log
+        folder = stage_folder(output, stage)
+        assert (folder / "command.txt").read_text().strip() == stage.shell_line()
+        assert (folder / "log.txt").stat().st_size > 0 and is_done(output, stage)
+    summary = json.loads((output / "results.json").read_text())
+    cells = summary["recipes"][0]["cells"]
+    assert [c["row"] for c in cells] == ["mosaic", "tosil", "lstm_osil", "mlp_osil", "daml"]
+    markdown = (output / "results.md").read_text()
+    for cell, name in zip(cells, METHOD_ROWS):
+        # the table's number is the evaluation's own: read it back from mosaic-eval's results file
+        evaluation = next(e for e in plan.evaluations if e.row == cell["row"])
+        task_row = json.loads(evaluation.results.read_text())["tables"]
+        task_row = next(iter(task_row.values()))["per_task"][0]
+        assert cell["mean"] == task_row["mean"] and cell["episodes"] == task_row["episodes"] == 4
+        assert f"| {name} | {100 * cell['mean']:.1f} +- 0.0 (paper " in markdown
+    assert "(paper 67.1)" in markdown  # MOSAIC's published single-task door number beside ours
+    assert (output / "figures" / "bars_single-task.png").stat().st_size > 0
+    assert (output / "figures" / "confusion_single-task_daml_door.png").stat().st_size > 0
+    # a second run finds everything done and only rewrites the report
+    again = _run(arguments)
+    assert again.returncode == 0 and again.stdout.count("done before, skipped") == len(plan.stages)
+
+
+def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, tmp_path):
+    output = tmp_path / "fine"
+    arguments = ["run", "fine-tune", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data)]
+    plan = build_plan("fine-tune", PRESETS["smoke"], output, smoke_data)
+    target = next(s for s in plan.stages if s.key == "train/fine-tune/door/mosaic/fine-tune-50/seed1")
+    driver = subprocess.Popen([*EXPERIMENT, *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              start_new_session=True)
+    deadline = time.monotonic() + 900
+    while not (stage_folder(output, target) / "log.txt").exists():
+        assert driver.poll() is None, driver.stdout.read().decode()[-3000:]
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    time.sleep(2)  # into lerobot-train's start
+    os.killpg(driver.pid, signal.SIGKILL)  # the machine goes away: driver and stage, no clean-up
+    driver.wait()
+    finished = {s.key: (stage_folder(output, s) / "done.json").stat().st_mtime for s in plan.stages if is_done(output, s)}
+    index = plan.stages.index(target)
+    assert set(finished) == {s.key for s in plan.stages[:index]}
+
+    result = _run(arguments)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert result.stdout.count("done before, skipped") == index
+    assert f"{target.title} (resuming) ..." in result.stdout
+    assert result.stdout.count("(resuming)") == 1
+    for key, mtime in finished.items():  # the stages finished before the kill were not run again
+        assert (output / "stages" / key / "done.json").stat().st_mtime == mtime
+    summary = json.loads((output / "results.json").read_text())["recipes"][0]
+    curves = {(c["mode"], c["fraction"]): c for c in summary["curves"]}
+    assert set(curves) == {("fine-tune", 50), ("scratch", 50), ("fine-tune", 100), ("scratch", 100)}
+    # fine-tuning curves start at step 0 with the novel-task model's own evaluation (Table II, No Training)
+    assert all(c["steps"] == ([0, 1, 2] if mode == "fine-tune" else [1, 2]) for (mode, _), c in curves.items())
+    assert (output / "figures" / "fine_tune_door_mosaic.png").stat().st_size > 0
+    markdown = (output / "results.md").read_text()
+    assert "Table II, No Training" in markdown and "Table II, Fine-tune" in markdown
+    assert "| MOSAIC, from scratch, 50% data |" in markdown
+    # the fine-tuned runs started from the novel-task model, trained without the held-out task
+    fine = stage_folder(output, target) / "command.txt"
+    assert "--policy.path=" in fine.read_text() or "--resume=true" in fine.read_text()
+    assert "novel-task/door/mosaic/seed1" in (stage_folder(output, target) / "log.txt").read_text()
