@@ -102,7 +102,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     message = view_episode(root, args.episode, pair=pair, pair_root=pair_root, save=args.save, web=web)
     print(message)
     if web is not None:
-        # Served after Ctrl-C: the recording was disconnected and nothing is left to write. rerun's exit hooks
+        # Served after Ctrl-C: the recording was flushed before serving and nothing is left to write. rerun's exit hooks
         # (shutting its web and gRPC servers down) were seen to hang for minutes on a loaded machine, so the
         # process ends here instead of in the interpreter's shutdown.
         sys.stdout.flush()

@@ -146,12 +146,13 @@ def cell_text(cell: CellResult | None) -> str:
     """``"25.0 +- 5.0 (paper 67.1)"``; what is missing says so."""
     if cell is None:
         return "-"
+    to_go = f"{cell.missing} evaluation{'s' if cell.missing != 1 else ''} to go"
     if cell.mean is None:
-        ours = f"not run ({cell.missing} evaluations to go)"
+        ours = f"not run ({to_go})"
     else:
         ours = f"{_percent(cell.mean)} +- {_percent(cell.std)}"
         if cell.missing:
-            ours += f" ({cell.missing} evaluations to go)"
+            ours += f" ({to_go})"
     paper = "n/r" if cell.paper is None else f"{cell.paper:.1f}"
     return f"{ours} (paper {paper})"
 
