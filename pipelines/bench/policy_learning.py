@@ -31,7 +31,8 @@ from pathlib import Path
 
 @dataclass(frozen=True)
 class Preset:
-    """Sizes of one learning run. `cpu` fits about an hour of training on 2 CPU cores; `paper` is the paper's."""
+    """Sizes of one learning run. `cpu` is about 2 hours of MOSAIC training on 2 CPU cores (2-2.5 s per step);
+    `paper` is the paper's."""
 
     image_size: str = "48x88"
     episodes: int = 40  # per variation and robot

@@ -31,6 +31,11 @@ ASSUMED_GPU_SECONDS_PER_STEP = 0.3
 MEASURED_ROLLOUT_STEPS_PER_S = 13.5
 """Control steps per second per evaluation worker with MOSAIC at 100x180, measured on this project's 2-core
 machine (README, speed section): the rollout part of the estimate."""
+MEASURED_CPU_SECONDS_PER_STEP = 2.5
+"""Seconds per MOSAIC training step on this project's 2-core machine at 48x88, batch 16, 7 frames (lerobot-train's
+``updt_s``, the ``cpu`` preset's sizes): the training part of the estimate on ``--policy.device=cpu``, scaled by
+batch size and pixels per image."""
+CPU_REFERENCE_BATCH_PIXELS = 16 * 48 * 88
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -75,6 +80,11 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
             f"{len(evaluations)} evaluations (at most {rollout_steps} control steps, about "
             f"{rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S / 3600:.1f} CPU-hours of rollouts at "
             f"{MEASURED_ROLLOUT_STEPS_PER_S} steps/s per worker, {workers} workers)")
+    if preset.device == "cpu":
+        height, _, width = preset.image_size.partition("x")
+        per_step = MEASURED_CPU_SECONDS_PER_STEP * preset.batch_size * int(height) * int(width) / CPU_REFERENCE_BATCH_PIXELS
+        text += (f"; training about {steps * per_step / 3600:.1f} hours on 2 CPU cores ({per_step:.2g} s per step, "
+                 f"scaled from {MEASURED_CPU_SECONDS_PER_STEP} s measured for MOSAIC at 48x88, batch 16)")
     if preset.device == "cuda":
         text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
                  f"{ASSUMED_GPU_SECONDS_PER_STEP} s per step (not measured here)")

@@ -55,7 +55,7 @@ class ExperimentPreset:
 
 PRESETS: dict[str, ExperimentPreset] = {
     "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
-    # About an hour of training per model on 2 cores (batch 16 at 48x88); novel-task models train on 3 tasks.
+    # About 2 hours of training per MOSAIC model on 2 cores (2.5 s per step at batch 16, 48x88); novel-task models train on 3 tasks.
     "cpu": ExperimentPreset(
         image_size="48x88", episodes=40, steps=2700, batch_size=16, save_every=900, eval_checkpoints=1,
         eval_episodes=10, seeds=1, single_task_tasks=("door", "press_button"), multi_task_tasks=("door", "drawer", "press_button"),

@@ -88,6 +88,12 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
     assert "GPU-hours" in capsys.readouterr().out
 
 
+def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
+    # 5 methods x 2700 steps at the 2.5 s per step measured for the cpu preset's own sizes: 9.4 hours
+    cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
+    assert "training about 9.4 hours on 2 CPU cores (2.5 s per step" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     "arguments, message",
     [
