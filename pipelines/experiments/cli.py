@@ -60,6 +60,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def _duration(seconds: float, unit: str = "hours") -> str:
+    """``"9.4 hours"``, or minutes below an hour (``"3 minutes"``) so a small plan does not read ``0.0 hours``."""
+    if seconds < 3600:
+        minutes = max(1, round(seconds / 60))
+        return f"{minutes} {unit.replace('hours', 'minutes' if minutes > 1 else 'minute')}"
+    return f"{seconds / 3600:.1f} {unit}"
+
+
 def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
     """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours."""
     from mosaic_data.tasks.spec import TASK_SPECS
@@ -78,12 +86,12 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
     workers = max(1, preset.workers)
     text = (f"{len(plan.stages)} stages: {len(train)} training runs ({steps} steps in all), "
             f"{len(evaluations)} evaluations (at most {rollout_steps} control steps, about "
-            f"{rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S / 3600:.1f} CPU-hours of rollouts at "
+            f"{_duration(rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S, 'CPU-hours')} of rollouts at "
             f"{MEASURED_ROLLOUT_STEPS_PER_S} steps/s per worker, {workers} workers)")
     if preset.device == "cpu":
         height, _, width = preset.image_size.partition("x")
         per_step = MEASURED_CPU_SECONDS_PER_STEP * preset.batch_size * int(height) * int(width) / CPU_REFERENCE_BATCH_PIXELS
-        text += (f"; training about {steps * per_step / 3600:.1f} hours on 2 CPU cores ({per_step:.2g} s per step, "
+        text += (f"; training about {_duration(steps * per_step)} on 2 CPU cores ({per_step:.2g} s per step, "
                  f"scaled from {MEASURED_CPU_SECONDS_PER_STEP} s measured for MOSAIC at 48x88, batch 16)")
     if preset.device == "cuda":
         text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
