@@ -114,7 +114,11 @@ def view_episode(
     if web is not None:
         check_port_free(web.web, "--web-port")
         check_port_free(web.grpc, "--grpc-port")
-        recording.serve_grpc(grpc_port=web.grpc, default_blueprint=blueprint)
+        # The blueprint is sent after the server is up, not as serve_grpc's default_blueprint: serve_grpc waits for
+        # rerun's server thread while holding the GIL, and that thread, dropping the blueprint's NumPy-backed arrow
+        # buffers, waits for the GIL (seen with py-spy: a hang that left the web port unbound on a loaded machine).
+        recording.serve_grpc(grpc_port=web.grpc)
+        recording.send_blueprint(blueprint, make_active=True, make_default=True)
         rr.serve_web_viewer(web_port=web.web, open_browser=False, connect_to=f"rerun+http://localhost:{web.grpc}/proxy")
         log_all(recording)
         try:  # an unbounded flush would wait forever for a server that did not come up
