@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from mosaic_data.cli_args import parse_image_size
+
 from .presets import PRESETS, ExperimentError, ExperimentPreset, check_tasks, resolve_preset
 from .recipes import RECIPES, Plan, build_plan, check_episode_layout
 from .stages import Stage, StageFailed, experiment_lock, is_done, run_stage, stage_folder, stage_seconds
@@ -35,7 +37,8 @@ MEASURED_CPU_SECONDS_PER_STEP = 2.5
 """Seconds per MOSAIC training step on this project's 2-core machine at 48x88, batch 16, 7 frames (lerobot-train's
 ``updt_s``, the ``cpu`` preset's sizes): the training part of the estimate on ``--policy.device=cpu``, scaled by
 batch size and pixels per image."""
-CPU_REFERENCE_BATCH_PIXELS = 16 * 48 * 88
+CPU_REFERENCE_SIZES = (16, 48, 88)
+"""Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -89,10 +92,11 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
             f"{_duration(rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S, 'CPU-hours')} of rollouts at "
             f"{MEASURED_ROLLOUT_STEPS_PER_S} steps/s per worker, {workers} workers)")
     if preset.device == "cpu":
-        height, _, width = preset.image_size.partition("x")
-        per_step = MEASURED_CPU_SECONDS_PER_STEP * preset.batch_size * int(height) * int(width) / CPU_REFERENCE_BATCH_PIXELS
-        text += (f"; training about {_duration(steps * per_step)} on 2 CPU cores ({per_step:.2g} s per step, "
-                 f"scaled from {MEASURED_CPU_SECONDS_PER_STEP} s measured for MOSAIC at 48x88, batch 16)")
+        height, width = parse_image_size(preset.image_size)
+        batch, ref_height, ref_width = CPU_REFERENCE_SIZES
+        per_step = MEASURED_CPU_SECONDS_PER_STEP * preset.batch_size * height * width / (batch * ref_height * ref_width)
+        text += (f"; training about {_duration(steps * per_step)} on 2 CPU cores ({per_step:.2g} s per step, scaled "
+                 f"from {MEASURED_CPU_SECONDS_PER_STEP} s measured for MOSAIC at {ref_height}x{ref_width}, batch {batch})")
     if preset.device == "cuda":
         text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
                  f"{ASSUMED_GPU_SECONDS_PER_STEP} s per step (not measured here)")
