@@ -12,6 +12,10 @@ it can), then `select_action(batch)` every control step: the policy runs once pe
 out the predicted targets in order. An environment can deliver the demonstration as the observation
 `observation.demo` (what `lerobot-eval --env.type=mosaic` does): the first `select_action` after `reset()`
 caches it.
+
+Multi-process training (``accelerate launch ... lerobot-train``, docs/multi_gpu_training.md): every process pairs
+the samples of its own shard, draws its own augmentations from the first training step on, and :meth:`update`
+averages the BatchNorm statistics over the processes after every optimizer step (:mod:`.distributed`).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from .augmentation import FrameAugmentation
 from .configuration_demo import DemoConditionedConfig
 from .demo_conditioning import DemoConditioning, to_float_frames
 from .discretized_logistic import DiscretizedLogisticHead, DiscretizedLogisticMixture
+from .distributed import average_batchnorm_statistics, rank_random_generators
 from .paired_sampling import demo_frame_indices
 
 if TYPE_CHECKING:
@@ -103,6 +108,7 @@ class DemoConditionedPolicy(PreTrainedPolicy):
             self.conditioning = DemoConditioning.for_training(config, dataset_meta, kwargs.get("agent_episodes"))
         else:
             self.conditioning = DemoConditioning(None, config.balance_loss)
+        self._rank_streams = False  # set once this process has its own random stream (multi-process training)
         self.reset()
 
     # -- what a policy supplies ----------------------------------------------------------------------------
@@ -260,6 +266,9 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         return TrainingSample(obs, demo, chunks, chunk_valid & valid[:, :, None], valid, state, batch)
 
     def forward(self, batch: dict[str, Any], reduction: str = "mean") -> tuple[Tensor, dict]:
+        if self.training and not self._rank_streams:  # the first training step: its own augmentations per rank
+            self._rank_streams = True
+            rank_random_generators()
         sample = self.training_sample(batch)
         per_sample, info = self.compute_loss(sample)
         wait = self.conditioning.last_wait_s
@@ -272,6 +281,15 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         loss = (per_sample * weights).sum()
         info["loss"] = loss.item()
         return loss, info
+
+    @torch.no_grad()
+    def update(self) -> None:
+        """lerobot-train calls this after every optimizer step (on the unwrapped policy, every rank).
+
+        Multi-process training: the BatchNorm running statistics are averaged over the ranks, so every rank holds
+        the same state and the statistics the policy acts with come from the whole global batch (a no-op in one
+        process). Subclasses with their own post-step work (MOSAIC's EMA target) call this first."""
+        average_batchnorm_statistics(self)
 
     def action_chunks(self, batch: dict[str, Any], n_frames: int) -> tuple[Tensor, Tensor]:
         """Each observation frame's chunk of targets from the sample's action window, and which are real.

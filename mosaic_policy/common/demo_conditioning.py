@@ -11,6 +11,10 @@ turns those into what the model needs, with no flag beyond ``--policy.demo_repo_
   paper's rule), whatever the batch mix. A variation's task comes from the suite's plain-data table
   (:mod:`mosaic_data.tasks.spec`, no simulator); strings not found there count as one unnamed task.
 
+Under ``accelerate launch`` every training process builds its own conditioning: its sampler pairs the samples
+of the process's shard of the batch, draws from its own random stream (seeded with the process's rank) and
+decodes with its share of the machine's cores (:mod:`.distributed`).
+
 Policies are models: they call this, they never read the command line or import the simulator.
 """
 
@@ -25,6 +29,7 @@ from torch import Tensor
 
 from mosaic_data.constants import DEMO_FRAMES_KEY
 
+from .distributed import demo_threads_per_process, process_rank
 from .paired_sampling import PairedDemoSampler
 
 
@@ -77,8 +82,9 @@ class DemoConditioning:
             config.n_demo_frames,
             agent_meta=dataset_meta,
             agent_episodes=agent_episodes,
-            threads=config.demo_loader_threads,
+            threads=demo_threads_per_process(config.demo_loader_threads),
             prefetch_batches=config.demo_prefetch_batches,
+            process_index=process_rank(),
         )
         return cls(sampler, config.balance_loss)
 

@@ -17,6 +17,10 @@ Data fractions: when training uses a subset of the agent episodes (lerobot-train
 which episodes the run trains on, so the sampler learns them from the batches: a variation's demonstrations
 come from the instances of the agent episodes it has been asked to pair so far (all of the run's, after the first
 batches), never from an instance the run does not train on. `agent_episodes` fixes the set up front instead.
+
+Several training processes (``accelerate launch``): every process has its own sampler and pairs the samples of
+its own shard of the batch (the batch its policy's forward gets), with its own random stream (``process_index``,
+the process's rank) and its own decode threads. A process learns the run's instances from its own batches.
 """
 
 import threading
@@ -82,6 +86,7 @@ class PairedDemoSampler:
         threads: int = 2,
         prefetch_batches: int = 2,
         seed: int = 0,
+        process_index: int = 0,
     ):
         from lerobot.datasets import LeRobotDatasetMetadata
 
@@ -126,7 +131,12 @@ class PairedDemoSampler:
         self.threads = threads
         self.prefetch_batches = prefetch_batches
         self.seed = seed
-        self.rng = np.random.default_rng(seed)
+        self.process_index = process_index
+        # One stream per training process (its global rank): the processes of a multi-process run pair different
+        # samples and must not draw the same demonstrations and frames in the same order. Process 0 keeps
+        # default_rng(seed)'s stream.
+        spawn_key = (process_index,) if process_index else ()
+        self.rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=spawn_key))
         self.wait_s = 0.0  # total time sample() waited for decoding, seconds
         self.last_wait_s = 0.0  # the same for the latest sample() call
         self.served = 0

@@ -236,7 +236,12 @@ class MosaicPolicy(DemoConditionedPolicy):
 
     @torch.no_grad()
     def update(self) -> None:
-        """EMA step of the target encoder and projectors; lerobot-train calls this after every optimizer step."""
+        """EMA step of the target encoder and projectors; lerobot-train calls this after every optimizer step.
+
+        Every rank of a multi-process run does the same step: the online weights are the same after the optimizer
+        step (DDP averaged the gradients), the BatchNorm statistics the target copies are first averaged over the
+        ranks (``super().update()``) and the momentum follows the run's step count, the same on every rank."""
+        super().update()
         if self.config.contrastive == "off":
             return
         momentum = ema_momentum(*self.ema_schedule(), self.config.ema_momentum)
