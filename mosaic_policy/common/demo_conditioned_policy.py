@@ -14,8 +14,9 @@ out the predicted targets in order. An environment can deliver the demonstration
 caches it.
 
 Multi-process training (``accelerate launch ... lerobot-train``, docs/multi_gpu_training.md): every process pairs
-the samples of its own shard, draws its own augmentations from the first training step on, and :meth:`update`
-averages the BatchNorm statistics over the processes after every optimizer step (:mod:`.distributed`).
+the samples of its own shard, draws its own augmentations from the first training step on, balances the loss
+over the global batch, and :meth:`update` averages the BatchNorm statistics over the processes after every
+optimizer step (:mod:`.distributed`).
 """
 
 from __future__ import annotations
@@ -275,7 +276,7 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         if wait is not None:
             info["demo_wait_s"] = wait
         b = per_sample.shape[0]
-        weights = self.conditioning.sample_weights(batch, b, per_sample.device)
+        weights = self.conditioning.sample_weights(batch, b, per_sample.device, self.training)
         if reduction == "none":
             return per_sample * weights * b, info
         loss = (per_sample * weights).sum()

@@ -29,7 +29,7 @@ from torch import Tensor
 
 from mosaic_data.constants import DEMO_FRAMES_KEY
 
-from .distributed import demo_threads_per_process, process_rank
+from .distributed import demo_threads_per_process, gather_from_ranks, process_rank
 from .paired_sampling import PairedDemoSampler
 
 
@@ -104,10 +104,21 @@ class DemoConditioning:
         episodes = [int(e) for e in episodes.reshape(-1).tolist()] if episodes is not None else None
         return self.sampler.sample(list(tasks), episodes).float() / 255.0
 
-    def sample_weights(self, batch: dict[str, Any], n_samples: int, device) -> Tensor:
+    def sample_weights(self, batch: dict[str, Any], n_samples: int, device, training: bool = False) -> Tensor:
+        """Loss weights of the batch's samples, summing to 1 (balanced per variation and task: see the module).
+
+        Training in several processes (``training`` and a distributed run), the balance is the one of the global
+        batch, every rank's shard together, as one process training on that batch would weigh it: each rank gets
+        its samples' weights times the number of ranks, since DDP averages the ranks' gradients."""
         if not self.balance_loss or "task" not in batch:
             return torch.full((n_samples,), 1.0 / n_samples, device=device)
-        return balanced_sample_weights(list(batch["task"]), device)
+        tasks = list(batch["task"])
+        shards = gather_from_ranks(tasks) if training else None
+        if shards is None:
+            return balanced_sample_weights(tasks, device)
+        start = sum(len(shard) for shard in shards[: process_rank()])
+        weights = balanced_sample_weights([t for shard in shards for t in shard], device)
+        return weights[start : start + len(tasks)] * len(shards)
 
     @property
     def last_wait_s(self) -> float | None:

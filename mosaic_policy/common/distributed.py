@@ -12,6 +12,9 @@ forward, copies rank 0's buffers to the other ranks. What it does not do, and th
   optimizer step. Without it each rank updates them from its own shard only, the ranks' copies differ after
   every step and DDP keeps rank 0's: the statistics the policy acts with (and MOSAIC's EMA target copies) would
   come from 1/N of the samples, and the ranks' final states would differ;
+- :func:`gather_from_ranks`: what every rank holds, for rules over the global batch (the loss balancing per
+  variation and task: over one rank's shard it would weight the samples differently from the same batch in one
+  process);
 - :func:`rank_random_generators`: different random streams per rank. lerobot-train seeds every rank with the
   same ``--seed``, so every rank would draw the same augmentations (crops, jitter, blur), contrastive positives
   and dropout masks for its i-th sample as every other rank.
@@ -58,6 +61,15 @@ def demo_threads_per_process(requested: int) -> int:
     if requested <= 0 or n_local <= 1:
         return requested
     return max(1, min(requested, usable_cpus() // n_local))
+
+
+def gather_from_ranks(obj) -> list | None:
+    """Every rank's ``obj`` in rank order (a collective: every rank must call it), None outside a distributed run."""
+    if not _distributed() or torch.distributed.get_world_size() < 2:
+        return None
+    gathered: list = [None] * torch.distributed.get_world_size()
+    torch.distributed.all_gather_object(gathered, obj)
+    return gathered
 
 
 def _batchnorms(module: nn.Module) -> list[nn.modules.batchnorm._BatchNorm]:

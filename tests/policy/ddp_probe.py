@@ -10,6 +10,7 @@ rank's final policy state (``rank<r>.safetensors``) when training ends:
 - the demonstrator sampler's RNG seed material and its decode threads;
 - a digest of torch's global RNG state after every training forward (augmentations and contrastive positives
   draw from it);
+- the loss weights of every batch;
 - the policy's ``update()`` calls.
 """
 
@@ -50,6 +51,15 @@ def demo_frames(self, batch):
     return frames
 
 
+_sample_weights = DemoConditioning.sample_weights
+
+
+def sample_weights(self, batch, n_samples, device, *args, **kwargs):
+    weights = _sample_weights(self, batch, n_samples, device, *args, **kwargs)
+    record.setdefault("weights", []).append([float(w) for w in weights])
+    return weights
+
+
 _forward = DemoConditionedPolicy.forward
 
 
@@ -70,6 +80,7 @@ def forward(self, batch, reduction="mean"):
 
 
 DemoConditioning.demo_frames = demo_frames
+DemoConditioning.sample_weights = sample_weights
 DemoConditionedPolicy.forward = forward
 
 if __name__ == "__main__":

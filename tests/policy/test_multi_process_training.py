@@ -120,6 +120,18 @@ def test_each_rank_pairs_the_samples_of_its_own_shard_each_once(two_process_run)
     assert sorted(all_indices) == sorted(order[: 2 * STEPS * BATCH])
 
 
+def test_the_loss_is_balanced_over_the_global_batch_as_in_one_process(two_process_run):
+    """The per-variation loss balance of the global batch (both ranks' shards), as one process training on it would
+    weigh it; before, each rank balanced its own shard and DDP averaged them (different weights)."""
+    from mosaic_policy.common.demo_conditioning import balanced_sample_weights
+
+    ranks = two_process_run["ranks"]
+    for k in range(STEPS):
+        tasks = ranks[0]["batches"][k]["task"] + ranks[1]["batches"][k]["task"]
+        weights = torch.tensor(ranks[0]["weights"][k] + ranks[1]["weights"][k]) / 2  # DDP averages the 2 ranks
+        assert torch.allclose(weights, balanced_sample_weights(tasks)), k
+
+
 def test_each_rank_draws_its_own_demonstrations_and_augmentations(two_process_run):
     """Before, both ranks' demonstrator samplers had the same seed and torch's stream (augmentations, contrastive
     positives, dropout) was the same on both: the i-th sample of every rank got the same random draws."""
