@@ -41,25 +41,33 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def two_process_run(door_datasets, tmp_path_factory):
-    """One `accelerate launch` of lerobot-train in 2 processes (about 20 s on 2 cores), shared by the tests below."""
+MOSAIC_SMALL = [
+    "--policy.n_attention_heads=2", "--policy.contrastive_dim=16", "--policy.contrastive_hidden_dim=32",
+]  # fmt: skip
+BASELINE_SMALL = {
+    "tosil": ["--policy.n_attention_layers=2", "--policy.n_attention_heads=2", "--policy.point_horizon=2"],
+    "lstm_osil": ["--policy.lstm_hidden_dim=32"],
+    "mlp_osil": ["--policy.context_hidden_dim=32", "--policy.context_dim=16"],
+    "daml": ["--policy.policy_hidden_dim=32", "--policy.adapt_loss_channels=8"],
+}
+
+
+def _launch_two_processes(policy_type: str, options: list[str], door_datasets, base: Path) -> dict:
+    """`accelerate launch` of lerobot-train (through ddp_probe.py) in 2 CPU processes; what each rank recorded."""
     if not _accelerate_available():
         pytest.skip("needs accelerate and the installed lerobot_policy_mosaic plugin (README set-up)")
     agent_root, demo_root = door_datasets
-    base = tmp_path_factory.mktemp("two_process")
     output, probe = base / "run", base / "probe"
     command = [
         str(BIN / "accelerate"), "launch", "--multi_gpu", "--num_processes", "2", "--num_machines", "1",
         "--mixed_precision", "no", "--dynamo_backend", "no", "--main_process_port", str(_free_port()),
         str(PROBE),
-        "--policy.type=mosaic", "--dataset.repo_id=mosaic/door_panda", f"--dataset.root={agent_root}",
+        f"--policy.type={policy_type}", "--dataset.repo_id=mosaic/door_panda", f"--dataset.root={agent_root}",
         "--policy.demo_repo_id=mosaic/door_sawyer", f"--policy.demo_root={demo_root}",
         "--policy.push_to_hub=false", "--policy.device=cpu", f"--steps={STEPS}", f"--batch_size={BATCH}",
         "--num_workers=0", f"--save_freq={STEPS}", "--log_freq=1", f"--output_dir={output}", f"--seed={SEED}",
-        "--policy.train_obs_frames=3", "--policy.n_attention_heads=2", "--policy.embed_dim=32",
-        "--policy.head_hidden_dim=32", "--policy.contrastive_dim=16", "--policy.contrastive_hidden_dim=32",
-        "--policy.demo_loader_threads=2",
+        "--policy.train_obs_frames=3", "--policy.embed_dim=32", "--policy.head_hidden_dim=32",
+        "--policy.demo_loader_threads=2", *options,
     ]  # fmt: skip
     env = {
         **os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1",
@@ -74,16 +82,36 @@ def two_process_run(door_datasets, tmp_path_factory):
     return {"output": output, "ranks": ranks, "states": states, "agent_root": agent_root}
 
 
-def test_two_processes_write_one_checkpoint_holding_the_state_every_rank_ends_with(two_process_run):
-    """Before, each rank kept BatchNorm statistics of its own shard (72 tensors of the run differed between the
-    ranks, the EMA target's copies among them) and DDP kept rank 0's: statistics from half the samples."""
-    states = two_process_run["states"]
-    checkpoints = two_process_run["output"] / "checkpoints"
+def _assert_one_checkpoint_with_the_state_of_every_rank(run: dict) -> None:
+    states = run["states"]
+    checkpoints = run["output"] / "checkpoints"
     assert sorted(p.name for p in checkpoints.iterdir()) == [f"{STEPS:06d}", "last"]
     saved = load_file(checkpoints / "last" / "pretrained_model" / "model.safetensors")
     assert saved.keys() == states[0].keys() == states[1].keys()
     differ = [k for k in saved if not (torch.equal(states[0][k], states[1][k]) and torch.equal(saved[k], states[0][k]))]
     assert differ == []  # parameters, EMA target, BatchNorm statistics: identical on both ranks and saved once
+    assert all(r["updates"] == STEPS for r in run["ranks"])  # lerobot-train called update() after every step
+
+
+@pytest.fixture(scope="module")
+def two_process_run(door_datasets, tmp_path_factory):
+    """One 2-process MOSAIC run (about 20 s on 2 cores), shared by the tests below."""
+    return _launch_two_processes("mosaic", MOSAIC_SMALL, door_datasets, tmp_path_factory.mktemp("two_process"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("policy_type", list(BASELINE_SMALL))
+def test_every_baseline_trains_in_two_processes_to_one_checkpoint_and_identical_ranks(policy_type, door_datasets, tmp_path):
+    """The baselines share MOSAIC's multi-process path (about 20 s each on 2 cores; MOSAIC's run covers it)."""
+    _assert_one_checkpoint_with_the_state_of_every_rank(
+        _launch_two_processes(policy_type, BASELINE_SMALL[policy_type], door_datasets, tmp_path)
+    )
+
+
+def test_two_processes_write_one_checkpoint_holding_the_state_every_rank_ends_with(two_process_run):
+    """Before, each rank kept BatchNorm statistics of its own shard (72 tensors of the run differed between the
+    ranks, the EMA target's copies among them) and DDP kept rank 0's: statistics from half the samples."""
+    _assert_one_checkpoint_with_the_state_of_every_rank(two_process_run)
 
 
 def test_two_processes_update_the_ema_target_identically_after_every_step(two_process_run):
