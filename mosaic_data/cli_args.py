@@ -74,3 +74,16 @@ def parse_image_size(text: str) -> tuple[int, int]:
     if height < 16 or width < 16:
         raise argparse.ArgumentTypeError(f"images must be at least 16x16, got {text!r}")
     return height, width
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--executor`` and ``--ray-address``, shared by ``mosaic-data collect`` and ``mosaic-eval``."""
+    parser.add_argument(
+        "--executor", choices=("local", "ray"), default="local",
+        help=f"where the {what} run: 'local' processes on this machine, or 'ray' tasks on a Ray cluster (the same "
+        "results either way)",
+    )
+    parser.add_argument(
+        "--ray-address", default=None, metavar="ADDR",
+        help="Ray cluster to use with --executor ray, e.g. 'auto' or 'head-node:6379'; None starts Ray on this machine",
+    )

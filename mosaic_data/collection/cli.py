@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from mosaic_data.cli_args import episode_count, non_negative_int, parse_image_size, parse_int_list, positive_int
+from mosaic_data.cli_args import add_executor_arguments, episode_count, non_negative_int, parse_image_size, parse_int_list, positive_int
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
@@ -22,6 +22,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
         episodes=args.episodes,
         workers=args.workers,
         output_dir=args.output_dir,
+        executor=args.executor,
+        ray_address=args.ray_address,
         seed=args.seed,
         overwrite=args.overwrite,
         image_height=args.image_size[0],
@@ -141,7 +143,11 @@ def add_collection_commands(sub) -> None:
     collect.add_argument("--robot", default="both", choices=["panda", "sawyer", "both"])
     collect.add_argument("--variations", type=parse_int_list, default=None, help="e.g. 0,3,5; None means every variation")
     collect.add_argument("--episodes", type=episode_count, default=100, help="successful episodes per variation and robot")
-    collect.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="worker processes")
+    collect.add_argument(
+        "--workers", type=positive_int, default=None,
+        help="shards collected at once; None means one per core here, or per CPU of the Ray cluster with --executor ray",
+    )
+    add_executor_arguments(collect, "collection workers")
     collect.add_argument("--output-dir", type=Path, default=None, help=where)
     collect.add_argument("--seed", type=non_negative_int, default=0, help="base seed; episode seeds follow from it (see meta/mosaic.json)")
     collect.add_argument(

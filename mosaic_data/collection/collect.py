@@ -16,7 +16,7 @@ import queue
 import shutil
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,7 @@ from mosaic_data.collection.schema import (
 )
 from mosaic_data.collection.worker import TEMPORARY_MARK, ShardResult, read_shard_records, worker_main
 from mosaic_data.process_env import scoped_environment, stop_processes
+from mosaic_data.ray_cluster import EXECUTORS, ray_session
 from mosaic_data.tasks.spec import IMAGE_HEIGHT, IMAGE_WIDTH
 
 ALL_TASKS = "all"
@@ -51,12 +52,17 @@ class CollectRequest:
     robots: list[str]
     variations: list[int] | None = None
     episodes: int = 100
-    workers: int = 1
+    workers: int | None = None
+    """Shards collected at once; None: one per core here (local) or per CPU of the Ray cluster."""
     output_dir: Path | None = None
     seed: int = 0
     overwrite: bool = False
     image_height: int = IMAGE_HEIGHT
     image_width: int = IMAGE_WIDTH
+    executor: str = "local"
+    """'local' (worker processes on this machine) or 'ray' (:mod:`.ray_executor`): the same datasets either way."""
+    ray_address: str | None = None
+    """The Ray cluster to use with ``executor='ray'``; None starts a local Ray."""
 
 
 @dataclass
@@ -98,7 +104,11 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
         validate_robot(robot)
     if not 1 <= request.episodes <= MAX_EPISODES:
         raise ValueError(f"--episodes must be between 1 and {MAX_EPISODES}, got {request.episodes}")
-    if request.workers < 1:
+    if request.executor not in EXECUTORS:
+        raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {request.executor!r}")
+    if request.ray_address is not None and request.executor != "ray":
+        raise ValueError("--ray-address needs --executor ray")
+    if request.workers is not None and request.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {request.workers}")
     if request.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {request.seed}")
@@ -190,6 +200,8 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
     from tqdm import tqdm
 
     started = time.perf_counter()
+    if request.executor == "ray" and request.output_dir is not None:  # Ray workers run elsewhere: no relative paths
+        request.output_dir = Path(request.output_dir).expanduser().absolute()
     jobs = plan_jobs(request)
     for root in [job.root for job in jobs] + [dataset_root(request.output_dir, merged_repo_id_for(r)) for r in request.robots]:
         remove_stale_work(root)  # a killed merge's leftovers (of processes that are gone): an old dataset comes back
@@ -219,7 +231,10 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
     report.datasets = [
         _outcome(job, "complete, left alone") for job in jobs if states[job.repo_id] == "complete"
     ]
-    with _locked_staging(to_collect, discard) as pending_by_job:
+    with ExitStack() as stack:
+        # Connect to Ray before anything is staged: an unreachable cluster leaves no trace.
+        ray = stack.enter_context(ray_session(request.ray_address)) if request.executor == "ray" and to_collect else None
+        pending_by_job = stack.enter_context(_locked_staging(to_collect, discard))
         pending = [spec for job in to_collect for spec in pending_by_job[job.repo_id]]
         total = sum(job.total_episodes for job in to_collect)
         already = total - sum(spec.num_episodes for spec in pending)
@@ -243,12 +258,17 @@ def collect(request: CollectRequest, show_progress: bool = True) -> CollectRepor
             for job in to_collect:  # resumed runs may have every shard already
                 if remaining_shards[job.repo_id] == 0:
                     _finish_job(job)
-            report.workers_used = min(request.workers, len(pending))
             if pending:
                 # LeRobot's aggregation (torch, datasets) takes seconds to import: do it while the workers
                 # collect, not after the last shard.
                 threading.Thread(target=importlib.import_module, args=("lerobot.datasets.aggregate",), daemon=True).start()
-                _run_workers(pending, request.workers, on_episode, on_shard)
+                if request.executor == "ray":
+                    from mosaic_data.collection.ray_executor import run_shards_on_ray
+
+                    report.workers_used = run_shards_on_ray(ray, pending, request.workers, on_episode, on_shard)
+                else:
+                    report.workers_used = min(request.workers or os.cpu_count() or 1, len(pending))
+                    _run_workers(pending, report.workers_used, on_episode, on_shard)
     report.datasets += [_outcome(job, "collected") for job in to_collect]
     for robot, root in merged_complete:
         report.datasets.append(_outcome_of(merged_repo_id_for(robot), root, "complete, left alone"))

@@ -137,7 +137,15 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
         write_json_atomically(temporary / "meta" / SHARD_RECORD_NAME, {"shard": spec.name, "episodes": records})
         if parent_pid is not None and os.getppid() != parent_pid:
             raise SystemExit("parent process is gone; not committing the shard")
-        os.rename(temporary, spec.root)
+        try:
+            os.rename(temporary, spec.root)
+        except OSError:
+            if not spec.is_done:
+                raise
+            # Another run of this very shard committed first (a Ray retry of a worker thought lost): its content is
+            # the same (same seeds), so keep it and drop this copy rather than fail or write the shard twice.
+            shutil.rmtree(temporary, ignore_errors=True)
+            records = read_shard_records(spec.root)
     except BaseException:
         shutil.rmtree(temporary, ignore_errors=True)
         raise

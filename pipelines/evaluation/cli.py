@@ -31,6 +31,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from mosaic_data.cli_args import (  # noqa: E402
     OneLineErrorParser,
+    add_executor_arguments,
     episode_count,
     non_negative_int,
     parse_image_size,
@@ -68,7 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--task", required=True, help="task name (see `mosaic-data tasks`) or 'all'")
     parser.add_argument("--variations", type=parse_int_list, default=None, help="e.g. 0,1 (one task only; default all)")
     parser.add_argument("--episodes-per-variation", type=episode_count, default=10, help="episodes per variation (default 10)")
-    parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="rollout processes (default: all cores)")
+    parser.add_argument(
+        "--workers", type=positive_int, default=None,
+        help="episodes run at once (default: one per core here, or per CPU of the Ray cluster with --executor ray)",
+    )
+    add_executor_arguments(parser, "rollouts")
     parser.add_argument(
         "--max-steps", type=positive_int, default=None, metavar="N",
         help="cap every episode at N steps (smoke tests; default: the task's horizon)",
@@ -129,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
     from .recording import EvaluationRecording
     from .report import check_output_paths, print_table, report_paths, summarize, timing, write_reports
     from .runner import WorkerDied, in_plan_order, run_episodes
+    from mosaic_data.ray_cluster import RayExecutorError
 
     output = args.output or Path("outputs/eval") / f"{dt.datetime.now():%Y-%m-%d/%H-%M-%S}_{args.task}" / "results.json"
     json_path, markdown_path = report_paths(output)
@@ -149,26 +155,33 @@ def run(args: argparse.Namespace) -> int:
         if recording is not None:
             recording.log_episode(result)
 
-    workers = min(args.workers, len(plan.episodes))
+    workers = [args.workers or 1]  # the count that runs, once the executor knows it
+
+    def on_workers(count: int) -> None:
+        workers[0] = count
+
     start = time.perf_counter()
 
     def report_of(results: list) -> dict:
         return {
             "settings": plan.settings(),
             "tables": summarize(results, plan.groups),
-            "timing": timing(results, time.perf_counter() - start, workers),
+            "timing": timing(results, time.perf_counter() - start, workers[0]),
             "episodes": [result.summary() for result in results],
         }
 
     try:
-        results = run_episodes(plan.episodes, plan.agents, plan.demo_source, args.workers, on_result, args.max_steps)
+        results = run_episodes(
+            plan.episodes, plan.agents, plan.demo_source, args.workers, on_result, args.max_steps, args.executor, args.ray_address,
+            on_workers,
+        )
     except (KeyboardInterrupt, Exception) as error:
         kept = _keep_partial(in_plan_order(finished, plan.episodes), len(plan.episodes), error, json_path, report_of)
         if isinstance(error, KeyboardInterrupt):
             raise _Stopped(130, f"interrupted; {kept}") from None
         if isinstance(error, WorkerDied):
             raise _Stopped(1, f"error: {error}; {kept}; run it again, with fewer --workers if memory is short") from None
-        if isinstance(error, EvaluationError):
+        if isinstance(error, (EvaluationError, RayExecutorError)):
             raise _Stopped(2, f"error: {error}; {kept}") from None
         print(f"mosaic-eval: {kept}", file=sys.stderr)
         raise

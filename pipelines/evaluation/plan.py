@@ -56,7 +56,9 @@ class EvaluationPlan:
             )
         if args.max_steps is not None and args.max_steps < 1:
             raise EvaluationError(f"--max-steps must be >= 1, got {args.max_steps}")
-        if args.workers < 1:
+        if args.ray_address is not None and args.executor != "ray":
+            raise EvaluationError("--ray-address needs --executor ray")
+        if args.workers is not None and args.workers < 1:
             raise EvaluationError(f"--workers must be >= 1, got {args.workers}")
         if not args.policy_paths and not args.baseline:
             raise EvaluationError("nothing to evaluate: pass --policy.path=<checkpoint> and/or --baseline expert|untrained")

@@ -41,16 +41,31 @@ def run_episodes(
     specs: list[EpisodeSpec],
     agent_specs: list[AgentSpec],
     demo_spec: DemoSourceSpec,
-    workers: int = 1,
+    workers: int | None = 1,
     on_result: Callable[[EpisodeResult], None] | None = None,
     max_steps: int | None = None,
+    executor: str = "local",
+    ray_address: str | None = None,
+    on_workers: Callable[[int], None] | None = None,
 ) -> list[EpisodeResult]:
     """Run every episode of ``specs``; ``on_result`` sees each result as it arrives (progress, recording, and
     the finished episodes a caller keeps if the evaluation stops early).
 
-    ``max_steps`` caps every task's horizon (smoke tests); None evaluates up to the horizon."""
+    ``max_steps`` caps every task's horizon (smoke tests); None evaluates up to the horizon. ``executor='ray'``
+    runs the episodes as Ray tasks (:mod:`.ray_runner`, on the cluster at ``ray_address`` or a local Ray), with the
+    same results; ``workers`` None means one per core (local) or per cluster CPU (Ray). ``on_workers`` is told how
+    many workers run (for the timing report)."""
+    if executor == "ray":
+        from .ray_runner import results_on_ray
+
+        episodes = results_on_ray(specs, agent_specs, demo_spec, workers, max_steps, ray_address, on_workers)
+    else:
+        workers = min(workers or os.cpu_count() or 1, max(1, len(specs)))
+        if on_workers is not None:
+            on_workers(workers)
+        episodes = _results(specs, agent_specs, demo_spec, workers, max_steps)
     results = []
-    for result in _results(specs, agent_specs, demo_spec, workers, max_steps):
+    for result in episodes:
         if on_result is not None:
             on_result(result)
         result.recording = None  # logged by on_result; do not keep frames of the whole evaluation in memory
