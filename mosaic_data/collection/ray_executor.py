@@ -42,7 +42,15 @@ def collect_shard_task(spec: ShardSpec, events) -> ShardResult:
     quiet_dataset_writing()
     if _environments is None:
         _environments = EnvironmentCache()
-    return collect_shard(spec, _environments, on_episode=lambda record: events.put_nowait((spec.name, record)))
+    return collect_shard(spec, _environments, on_episode=lambda record: _report(events, spec.name, record))
+
+
+def _report(events, shard_name: str, record: dict) -> None:
+    """Best effort: the progress queue may be gone with a lost node; the shard's result carries its episodes anyway."""
+    try:
+        events.put_nowait((shard_name, record))
+    except Exception:
+        pass
 
 
 def run_shards_on_ray(
@@ -62,7 +70,11 @@ def run_shards_on_ray(
         check_shared_folder(ray, staging, COLLECT_WORKER)
     limit = workers or cluster_cpus(ray) // max(1, int(COLLECT_WORKER.num_cpus))
     limit = max(1, min(limit, len(pending)))
-    events = Queue(actor_options={"num_cpus": 0})
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    # The progress queue lives on the driver's node, so losing another node does not lose it.
+    here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=True)
+    events = Queue(actor_options={"num_cpus": 0, "scheduling_strategy": here})
     task = ray.remote(collect_shard_task).options(
         max_retries=MAX_RETRIES, retry_exceptions=False,
         runtime_env=worker_env(ray, COLLECT_WORKER.num_cpus), **COLLECT_WORKER.options(),
@@ -71,16 +83,21 @@ def run_shards_on_ray(
     running: dict = {}  # object ref -> shard
     seen: set[tuple[str, str, int]] = set()  # (repo, shard, slot) already counted on the progress bar
 
+    def count(shard_name: str, record: dict) -> None:
+        key = (f"{record['task']}_{record['robot']}", shard_name, record["slot"])
+        if key not in seen:
+            seen.add(key)
+            on_episode(record)
+
     def report_episodes() -> None:
         while True:
             try:
                 shard_name, record = events.get_nowait()
             except Empty:
                 return
-            key = (f"{record['task']}_{record['robot']}", shard_name, record["slot"])
-            if key not in seen:
-                seen.add(key)
-                on_episode(record)
+            except ray.exceptions.RayActorError:  # the queue is gone with its node: shards still report their episodes
+                return
+            count(shard_name, record)
 
     try:
         while queued or running:
@@ -98,6 +115,8 @@ def run_shards_on_ray(
                     raise CollectionError(
                         f"{task_error_line(error, what)}; finished shards are kept: run the same command again to resume"
                     ) from None
+                for record in result.episodes:  # episodes whose events were lost with a dead worker or the queue
+                    count(spec.name, record)
                 on_shard(result)
         report_episodes()
     except BaseException:
