@@ -51,7 +51,8 @@ def ray_session(address: str | None, num_cpus: int | None = None) -> Iterator[An
         return
     settings: dict[str, Any] = {"logging_level": "ERROR", "log_to_driver": False}
     if address is None:
-        settings |= {"num_cpus": num_cpus or os.cpu_count() or 1, "include_dashboard": False}
+        # "local": a new Ray of this command's own, even when `ray start` left a cluster on this machine
+        settings |= {"address": "local", "num_cpus": num_cpus or os.cpu_count() or 1, "include_dashboard": False}
     else:
         settings["address"] = address
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a local, single-user Ray: no token to manage

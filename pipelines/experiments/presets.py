@@ -45,7 +45,9 @@ class ExperimentPreset:
     fine_tune_steps: int = 20_000
     fine_tune_save_every: int = 5_000
     ablation_tasks: tuple[str, ...] = ("door",)
-    workers: int = 2  # collection and evaluation processes
+    workers: int = 2  # collection and evaluation processes (local executor)
+    executor: str = "local"  # collection and evaluation on local processes, or "ray" (every CPU of the cluster)
+    ray_address: str = ""  # the Ray cluster with executor=ray; empty: Ray on this machine
     device: str = "cpu"  # --policy.device of lerobot-train
     num_workers: int = 2  # lerobot-train data loader workers
 
@@ -118,6 +120,10 @@ def check_preset(preset: ExperimentPreset) -> None:
             raise ExperimentError(f"preset {key}={getattr(preset, key)}: it must be at least 1")
     if any(not 0 < f <= 100 for f in preset.fine_tune_fractions) or not preset.fine_tune_fractions:
         raise ExperimentError(f"preset fine_tune_fractions={preset.fine_tune_fractions}: give percentages in 1..100")
+    if preset.executor not in ("local", "ray"):
+        raise ExperimentError(f"preset executor={preset.executor!r}: choose local or ray")
+    if preset.ray_address and preset.executor != "ray":
+        raise ExperimentError("preset ray_address needs executor=ray: add --set executor=ray")
     height, _, width = preset.image_size.partition("x")
     if not (height.isdigit() and width.isdigit()):
         raise ExperimentError(f"preset image_size={preset.image_size!r}: write it HxW, e.g. 100x180")

@@ -113,7 +113,7 @@ class PlanBuilder:
             key=f"collect/{task}", kind="collect", output=self.data_dir / "mosaic" / f"{task}_panda",
             title=f"collect {task} (Panda and Sawyer, {p.episodes} episodes per variation)",
             command=("mosaic-data", "collect", "--task", task, "--robot", "both", "--episodes", str(p.episodes),
-                     "--image-size", p.image_size, "--workers", str(p.workers), "--output-dir", str(self.data_dir),
+                     "--image-size", p.image_size, *executor_args(p), "--output-dir", str(self.data_dir),
                      "--quiet"),
         ))
         return DataPair(f"mosaic/{task}_panda", self.data_dir / "mosaic" / f"{task}_panda",
@@ -175,7 +175,7 @@ class PlanBuilder:
             for task in tasks:
                 results = self.output_dir / "runs" / run / "eval" / f"step_{step:06d}" / task / "results.json"
                 command = ["mosaic-eval", f"--policy.path={checkpoint}", "--task", task,
-                           "--episodes-per-variation", str(p.eval_episodes), "--workers", str(p.workers),
+                           "--episodes-per-variation", str(p.eval_episodes), *executor_args(p),
                            "--output", str(results), "--quiet"]
                 if p.eval_max_steps:
                     command += ["--max-steps", str(p.eval_max_steps)]
@@ -319,3 +319,10 @@ def build_plan(recipe: str, preset: ExperimentPreset, output_dir: Path, data_dir
     builder = PlanBuilder(recipe, preset, output_dir, Path(data_dir).absolute() if data_dir else output_dir / "data")
     function(builder, tuple(tasks))
     return builder.plan
+
+
+def executor_args(p: ExperimentPreset) -> tuple[str, ...]:
+    """How a collect or evaluate stage runs: ``workers`` local processes, or Ray tasks on every CPU of the cluster."""
+    if p.executor == "ray":
+        return ("--executor", "ray", *(("--ray-address", p.ray_address) if p.ray_address else ()))
+    return ("--workers", str(p.workers))

@@ -70,6 +70,9 @@ def cluster(tmp_path_factory):
             time.sleep(1)
         yield address, hidden, worker
     finally:
+        current = Path("/tmp/ray/ray_current_cluster")  # what `ray.init()` would join: not ours once we are gone
+        if current.is_file() and current.read_text().strip().endswith(f":{port}"):
+            current.unlink()
         for process in (worker, head):
             if process is not None and process.poll() is None:
                 os.killpg(process.pid, signal.SIGTERM)  # `ray start --block` stops its node's processes
@@ -122,3 +125,14 @@ def test_collect_survives_losing_a_node_and_equals_the_local_collection(cluster,
     assert "with 2 worker(s)" in stdout, stdout
     records = read_sidecar(tmp_path / "mosaic" / "door_panda")["episodes"]
     assert records == read_sidecar(door_output / "mosaic" / "door_panda")["episodes"]
+
+
+def test_without_ray_address_a_command_starts_its_own_ray_even_beside_a_cluster(cluster, tmp_path):
+    """``ray start`` left a cluster on this machine (``ray.init()`` would join it, and refuse our CPU count): without
+    ``--ray-address`` mosaic-eval still starts a Ray of its own, as documented."""
+    command = [sys.executable, "-m", "pipelines.evaluation.cli", "--baseline", "expert", "--task", "door", "--variations",
+               "0", "--episodes-per-variation", "1", "--max-steps", "3", "--image-size", TEST_IMAGE_SIZE, "--executor", "ray",
+               "--output", str(tmp_path / "results.json"), "--quiet"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600, env={**os.environ, "RAY_AUTH_MODE": "disabled"})
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (tmp_path / "results.json").is_file()

@@ -143,3 +143,19 @@ def test_an_interrupted_stage_resumes_where_it_can(tmp_path):
     merge = next(s for s in plan.stages if s.kind == "merge")
     merge.output.mkdir(parents=True)
     assert resume_command(merge) == (*merge.command, "--overwrite")  # replaces what it half built
+
+
+def test_executor_ray_runs_collection_and_evaluation_on_ray(tmp_path):
+    preset = resolve_preset("smoke", ["executor=ray", "ray_address=head-node:6379"])
+    plan = build_plan("single-task", preset, tmp_path)
+    outside = [s for s in plan.stages if s.kind in ("collect", "evaluate")]
+    assert outside and all(
+        "--workers" not in s.command and "--executor" in s.command for s in outside
+    )
+    for stage in outside:
+        at = stage.command.index("--executor")
+        assert stage.command[at:at + 4] == ("--executor", "ray", "--ray-address", "head-node:6379")
+    local = build_plan("single-task", PRESETS["smoke"], tmp_path)
+    assert all("--executor" not in s.command for s in local.stages)
+    with pytest.raises(ExperimentError, match="ray_address needs executor=ray"):
+        resolve_preset("smoke", ["ray_address=auto"])
