@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ["HF_HUB_OFFLINE"] = "1"
@@ -12,6 +13,14 @@ import pytest  # noqa: E402
 
 TEST_IMAGE_SIZE = "56x96"
 """Small images keep encoding cheap; the simulator, expert and horizon are the real ones."""
+
+
+def ctrl_c_reaches_it() -> None:
+    """``preexec_fn`` of a child process a test interrupts with SIGINT. A shell running the suite as a background job
+    (``bash .ci/run &``, ``nohup ... &``) starts its commands with SIGINT ignored, which every child inherits; Python
+    then never raises KeyboardInterrupt and the child goes on as if Ctrl-C had not been pressed. The child gets the
+    default disposition back, as in a terminal."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def run_cli(*args: str) -> int:

@@ -18,7 +18,7 @@ import pytest
 from mosaic_data.collection.metadata import read_sidecar
 from mosaic_data.collection.validate import validate_dataset
 
-from conftest import TEST_IMAGE_SIZE
+from conftest import TEST_IMAGE_SIZE, ctrl_c_reaches_it
 
 ARGS = ["collect", "--task", "door", "--robot", "panda", "--episodes", "1", "--executor", "ray", "--workers", "2",
         "--image-size", TEST_IMAGE_SIZE, "--quiet"]
@@ -34,7 +34,8 @@ def _shards(staging: Path) -> tuple[list[str], list[Path]]:
 
 def _start(output: Path) -> subprocess.Popen:
     command = [sys.executable, "-m", "mosaic_data.cli", *ARGS, "--output-dir", str(output)]
-    return subprocess.Popen(command, env={**os.environ, "MUJOCO_GL": "egl"}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(command, env={**os.environ, "MUJOCO_GL": "egl"}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=ctrl_c_reaches_it)
 
 
 def _wait_for(condition, process: subprocess.Popen, timeout_s: float = 300) -> None:

@@ -14,6 +14,8 @@ import urllib.request
 
 import pytest
 
+from conftest import ctrl_c_reaches_it
+
 
 def _view_command(door_output, *args: str) -> list[str]:
     return [sys.executable, "-m", "mosaic_data.cli", "view", "mosaic/door_panda", "--output-dir", str(door_output), *args]
@@ -48,7 +50,7 @@ def test_view_web_serves_rerun_web_viewer_until_interrupted(door_output, tmp_pat
     errors = (tmp_path / "stderr.txt").open("w")
     process = subprocess.Popen(
         _view_command(door_output, "--pair", "--web", "--web-port", str(web_port), "--grpc-port", str(grpc_port)),
-        env=_without_display(), stdout=subprocess.PIPE, stderr=errors, text=True,
+        env=_without_display(), stdout=subprocess.PIPE, stderr=errors, text=True, preexec_fn=ctrl_c_reaches_it,
     )
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(line) for line in process.stdout], daemon=True).start()
