@@ -10,7 +10,6 @@ never written twice.
 from __future__ import annotations
 
 import os
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -163,6 +162,3 @@ def stop_tasks(ray: Any, refs: list) -> None:
         except Exception:  # already finished, or the cluster is going away
             pass
 
-
-def print_line(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)

@@ -67,13 +67,15 @@ def parallel_bare_rate(task: str, robot: str, variations: list[int], episodes: i
     return sum(rates)
 
 
-def collect_rate(task: str, robot: str, variations: list[int], episodes: int, workers: int):
+def collect_rate(task: str, robot: str, variations: list[int], episodes: int, workers: int, executor: str = "local"):
+    """The report of a real ``collect`` into a temporary folder (removed afterwards), on ``executor``."""
     from mosaic_data.collection.collect import CollectRequest, collect
 
-    output = Path(tempfile.mkdtemp(prefix="mosaic_collect_bench_"))
+    output = Path(tempfile.mkdtemp(prefix=f"mosaic_collect_bench_{executor}_"))
     try:
         report = collect(
-            CollectRequest(task=task, robots=[robot], variations=variations, episodes=episodes, workers=workers, output_dir=output),
+            CollectRequest(task=task, robots=[robot], variations=variations, episodes=episodes, workers=workers,
+                           output_dir=output, executor=executor),
             show_progress=False,
         )
     finally:

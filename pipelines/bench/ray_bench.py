@@ -20,30 +20,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
-import tempfile
-from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+from pipelines.bench.collect_bench import collect_rate  # noqa: E402
 
 PAPER_SUITE_EPISODES = 61 * 100 * 2
 """61 variations x 100 episodes x 2 robots."""
 SUITE_FRAMES_PER_EPISODE = 13322 / 122
 """Measured: ``mosaic-data collect --task all --episodes 1`` wrote 13322 frames in its 122 episodes (every task)."""
-
-
-def collect_once(task: str, robot: str, variations: list[int], episodes: int, workers: int, executor: str):
-    from mosaic_data.collection.collect import CollectRequest, collect
-
-    output = Path(tempfile.mkdtemp(prefix=f"mosaic_ray_bench_{executor}_"))
-    try:
-        request = CollectRequest(
-            task=task, robots=[robot], variations=variations, episodes=episodes, workers=workers, output_dir=output,
-            executor=executor,
-        )
-        return collect(request, show_progress=False)
-    finally:
-        shutil.rmtree(output, ignore_errors=True)
 
 
 def main() -> None:
@@ -67,7 +52,7 @@ def main() -> None:
     figures: dict[str, list] = {"local": [], "ray": []}
     for repeat in range(args.repeats):
         for executor in (("local", "ray") if repeat % 2 == 0 else ("ray", "local")):
-            report = collect_once(args.task, args.robot, variations, args.episodes, args.workers, executor)
+            report = collect_rate(args.task, args.robot, variations, args.episodes, args.workers, executor)
             end_to_end = report.frames_collected / report.wall_s
             steady = report.frames_collected / (report.rollout_s + report.write_s)  # per worker
             figures[executor].append((end_to_end, steady, report.worker_peak_rss_mb, report.frames_collected, report.wall_s))
