@@ -242,3 +242,40 @@ def test_expert_success_table_over_20_seeds(task_env_cache, task, robot):
         env = task_env_cache(task, robot, variation)
         successes = sum(run_expert_episode(env, seed).success for seed in range(20))
         assert successes >= 19, f"{task}/{robot}/variation {variation}: {successes}/20"
+
+
+def test_render_buffers_are_frame_sized_and_frames_unchanged(task_env_cache, monkeypatch):
+    """The offscreen buffer is the frame's size and there is no shadow map while shadows are off (memory and the
+    per-frame clear); a scene built with MuJoCo's default buffers (640x480 and a 4096 shadow map, as before) draws
+    the very same pixels, on every task."""
+    import mosaic_data.tasks.base as task_base
+
+    for task in TASKS:
+        env = task_env_cache(task, "panda", 0)
+        env.reset_to_seed(11)
+        context = env.sim._render_context_offscreen.con
+        assert (context.offWidth, context.offHeight, context.shadowSize) == (IMAGE_WIDTH, IMAGE_HEIGHT, 0)
+        frame = env.render_agentview()
+        assert frame.shape == (IMAGE_HEIGHT, IMAGE_WIDTH, 3)
+        with monkeypatch.context() as patch:
+            patch.setattr(task_base, "size_render_buffers", lambda xml, *args, **kwargs: xml)
+            reference = make_task_env(task, 0, "panda")
+        try:
+            reference_context = reference.sim._render_context_offscreen.con
+            assert (reference_context.offWidth, reference_context.offHeight) == (640, 480)
+            assert reference_context.shadowSize == 4096
+            reference.reset_to_seed(11)
+            assert np.array_equal(reference.render_agentview(), frame), f"{task}: the frame-sized buffer changed pixels"
+        finally:
+            reference.close()
+
+
+def test_shadows_keep_their_shadow_map():
+    env = make_task_env("door", 0, "panda", image_height=48, image_width=88, fast_render=False)
+    try:
+        context = env.sim._render_context_offscreen.con
+        assert (context.offWidth, context.offHeight) == (88, 48) and context.shadowSize > 0
+        env.reset_to_seed(0)
+        assert env.render_agentview().shape == (48, 88, 3)
+    finally:
+        env.close()

@@ -30,7 +30,7 @@ import copy
 import logging
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import mujoco
 import numpy as np
@@ -84,6 +84,21 @@ def rotation_from_action(rotation_vector: Sequence[float]) -> Rotation:
 def rotation_to_state(rotation: Rotation) -> np.ndarray:
     """First two columns of the rotation matrix (6 numbers), a continuous orientation encoding."""
     return rotation.as_matrix()[:, :2].T.reshape(-1)
+
+
+class FrameState(NamedTuple):
+    """What a frame of the agentview camera shows, kept to render that frame later (:meth:`MosaicTaskEnv.frame_state`).
+
+    ``qpos``, ``mocap_pos`` and ``mocap_quat`` are the ones the simulation's kinematics were *last computed from*,
+    not the current ones: robosuite's ``step`` ends with MuJoCo's integration, which moves ``qpos`` on but leaves
+    the body and geom poses (what the renderer draws) those of the ``qpos`` before it. ``geom_rgba`` is the model's
+    colours at that moment (press_button lights its lamps during an episode).
+    """
+
+    qpos: np.ndarray
+    mocap_pos: np.ndarray
+    mocap_quat: np.ndarray
+    geom_rgba: np.ndarray
 
 
 class MosaicTaskEnv(ManipulationEnv):
@@ -196,9 +211,12 @@ class MosaicTaskEnv(ManipulationEnv):
     }
 
     def edit_model_xml(self, xml_str: str) -> str:
-        """robosuite's path fixes, then lighter copies of the detailed visual meshes (see ``render_meshes``)."""
+        """robosuite's path fixes, lighter copies of the detailed visual meshes (see ``render_meshes``), and render
+        buffers sized to the frame (see :func:`size_render_buffers`)."""
         xml_str = super().edit_model_xml(xml_str)
-        return xml_str if self.visual_face_budget is None else simplify_visual_meshes(xml_str, self.visual_face_budget)
+        if self.visual_face_budget is not None:
+            xml_str = simplify_visual_meshes(xml_str, self.visual_face_budget)
+        return size_render_buffers(xml_str, self.image_height, self.image_width, shadows=not self.fast_render)
 
     def _exclude_self_contacts(self) -> None:
         body_names = {body.get("name") for body in self.model.worldbody.iter("body")}
@@ -298,6 +316,77 @@ class MosaicTaskEnv(ManipulationEnv):
             [self.eef_pos, rotation_to_state(self.eef_rotation), [self.gripper_opening]]
         ).astype(np.float32)
 
+    # ------------------------------------------------------------------ frames rendered after the fact
+    # A demonstration's frames are picked from its length, known only at its end, so the expert's single pass keeps
+    # a FrameState per step and renders only the picked ones afterwards (mosaic_data.demos).
+    _kinematics_source: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    """(qpos, mocap_pos, mocap_quat) the kinematics were last computed from: noted after every reset and at every
+    physics substep, right after robosuite's ``forward``/``mj_step1`` (``_pre_action`` comes next)."""
+
+    def reset(self):
+        observations = super().reset()
+        self._note_kinematics_source()
+        return observations
+
+    def _pre_action(self, action, policy_step=False):
+        self._note_kinematics_source()
+        super()._pre_action(action, policy_step)
+
+    def _note_kinematics_source(self) -> None:
+        data = self.sim.data
+        self._kinematics_source = (data.qpos.copy(), data.mocap_pos.copy(), data.mocap_quat.copy())
+
+    def frame_state(self) -> FrameState:
+        """What :meth:`render_agentview` would draw now, to draw it later with :meth:`render_frame_states`.
+
+        Saving the current ``qpos`` would not do: after a step the renderer draws the poses of the ``qpos`` before
+        the step's last integration (see :class:`FrameState`), so the one noted then is kept.
+        """
+        if self._kinematics_source is None:
+            raise RuntimeError("no frame state before the first reset")
+        qpos, mocap_pos, mocap_quat = self._kinematics_source
+        return FrameState(qpos, mocap_pos, mocap_quat, self.sim.model.geom_rgba.copy())
+
+    def render_frame_states(self, states: Sequence[FrameState]) -> list[np.ndarray]:
+        """The frames :meth:`render_agentview` drew (or would have drawn) when ``states`` were taken, bit for bit.
+
+        Each state's kinematics are computed again (``mj_forward``, a function of ``qpos`` and the mocap poses) in a
+        scratch ``MjData``, so the simulation is left as it is, and drawn by this scene's own render context (its
+        scene, camera, options and GL buffers) the way robosuite's ``MjRenderContext.render``/``read_pixels`` do.
+        Model-level poses (fixtures placed at reset) must be the instance's: render before the next reset.
+        """
+        context = self._offscreen_context
+        if context is None:
+            raise RuntimeError("this scene has no offscreen render context")
+        model = self.sim.model._model
+        scratch = mujoco.MjData(model)
+        live_rgba = model.geom_rgba.copy()
+        height, width = self.image_height, self.image_width
+        viewport = mujoco.MjrRect(0, 0, width, height)
+        frames = []
+        self._make_gl_context_current()
+        try:
+            if width > context.con.offWidth or height > context.con.offHeight:  # as robosuite's render
+                context.update_offscreen_size(max(width, model.vis.global_.offwidth), max(height, model.vis.global_.offheight))
+            context.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            context.cam.fixedcamid = self.sim.model.camera_name2id("agentview")
+            for state in states:
+                scratch.qpos[:] = state.qpos
+                scratch.mocap_pos[:] = state.mocap_pos
+                scratch.mocap_quat[:] = state.mocap_quat
+                model.geom_rgba[:] = state.geom_rgba
+                mujoco.mj_forward(model, scratch)
+                mujoco.mjv_updateScene(
+                    model, scratch, context.vopt, context.pert, context.cam, mujoco.mjtCatBit.mjCAT_ALL, context.scn
+                )
+                mujoco.mjr_render(viewport, context.scn, context.con)
+                image = np.empty((height, width, 3), dtype=np.uint8)
+                mujoco.mjr_readPixels(image, None, viewport, context.con)
+                frames.append(np.ascontiguousarray(image[::-1]))
+        finally:
+            model.geom_rgba[:] = live_rgba
+        return frames
+
     def render_agentview(self) -> np.ndarray:
         """RGB image (H, W, 3) uint8 from the agentview camera, right side up.
 
@@ -345,6 +434,32 @@ class MosaicTaskEnv(ManipulationEnv):
 
     def set_joint_value(self, name: str, value: float) -> None:
         self.sim.data.qpos[self.joint_qpos_address(name)] = value
+
+
+def size_render_buffers(xml: str, height: int, width: int, shadows: bool) -> str:
+    """The model XML with MuJoCo's offscreen buffer the size of the frame, and no shadow map when shadows are off.
+
+    MuJoCo allocates its render buffers from the model's ``<visual>`` settings when the render context is made:
+    by default a 640x480 offscreen framebuffer (4x multisampled) and a 4096x4096 shadow map, 210 MB of a
+    scene's memory although ``fast_render`` draws no shadows and frames are 100x180. Every frame also clears the
+    whole framebuffer, so a buffer the size of the frame is cheaper per frame too. The viewport and the pixels
+    drawn are the same, so the frames are the same (tested).
+    """
+    root = ET.fromstring(xml)
+    visual = root.find("visual")
+    if visual is None:
+        visual = ET.SubElement(root, "visual")
+    buffer = visual.find("global")
+    if buffer is None:
+        buffer = ET.SubElement(visual, "global")
+    buffer.set("offwidth", str(int(width)))
+    buffer.set("offheight", str(int(height)))
+    if not shadows:
+        quality = visual.find("quality")
+        if quality is None:
+            quality = ET.SubElement(visual, "quality")
+        quality.set("shadowsize", "0")
+    return ET.tostring(root, encoding="unicode")
 
 
 def absolute_world_pose_controller(robot_name: str) -> dict:
