@@ -11,7 +11,7 @@ import numpy as np
 from mosaic_data.collection.schema import ACTION_NAMES
 from mosaic_data.experts import make_expert
 from mosaic_data.tasks import make_task_env
-from mosaic_data.tasks.base import MosaicTaskEnv
+from mosaic_data.tasks.base import FrameState, MosaicTaskEnv
 
 SUCCESS_TARGET = 0.95
 """Fraction of successful expert episodes every variation must reach."""
@@ -31,6 +31,8 @@ class Episode:
     states: list[np.ndarray] = field(default_factory=list)
     actions: list[np.ndarray] = field(default_factory=list)
     frames: list[np.ndarray] = field(default_factory=list)
+    frame_states: list[FrameState] = field(default_factory=list)
+    """What each frame shows, to render it later (``record_frame_states``; one per frame, as ``frames``)."""
     successes: list[bool] = field(default_factory=list)
     """Per step: whether the goal was reached right after that step's action (LeRobot's ``next.success``)."""
 
@@ -43,6 +45,7 @@ def run_expert_episode(
     record_final_frame: bool = True,
     frame_steps: Container[int] | None = None,
     on_step: Callable[[Episode], None] | None = None,
+    record_frame_states: bool = False,
 ) -> Episode:
     """Reset ``env`` to ``seed`` and let the expert act until success or the horizon.
 
@@ -52,6 +55,9 @@ def run_expert_episode(
     recorded frames to those steps (a replay that needs only a few frames of a known episode).
     ``on_step(episode)`` is called after every step, once its frame, state, action and success are in
     ``episode`` (a writer can encode the frame while the simulation goes on).
+    ``record_frame_states`` keeps, for every frame (the same steps as ``record_frames`` with
+    ``record_final_frame``), what :meth:`MosaicTaskEnv.render_frame_states` needs to render it identically
+    later: a pass that learns which frames it wants only at its end renders just those.
     """
     env.reset_to_seed(seed)
     expert = make_expert(env, expert_variation)
@@ -59,6 +65,8 @@ def run_expert_episode(
     for _ in range(env.horizon):
         if record_frames and (frame_steps is None or episode.length in frame_steps):
             episode.frames.append(env.render_agentview())
+        if record_frame_states:
+            episode.frame_states.append(env.frame_state())
         episode.states.append(env.robot_state())
         action = expert.act()
         episode.actions.append(action)
@@ -72,6 +80,8 @@ def run_expert_episode(
             break
     if record_frames and record_final_frame and (frame_steps is None or episode.length in frame_steps):
         episode.frames.append(env.render_agentview())
+    if record_frame_states and record_final_frame:
+        episode.frame_states.append(env.frame_state())
     return episode
 
 
