@@ -9,6 +9,12 @@ in the batch: 7 frames in training and 1 at inference compute the same thing per
 encodings differed between the two). The demo stream is updated by every layer and its keys/values at each
 layer depend on the demo only, so they can be computed once per episode and cached.
 
+The observation stream is computed in one of two ways with the same output. Without attention maps (training, and
+acting unless an episode's attention is recorded) it is one fused `scaled_dot_product_attention` call: frames are
+folded into the batch and each frame's keys/values are [its own tokens, the demo tokens], so the kernel computes
+exactly the pattern's query-key pairs, needs no mask and never forms the score matrix. With maps
+(`return_weights=True`) it is computed explicitly in two score blocks, own and demo, under one softmax.
+
 Full pattern (T-OSIL, and MOSAIC's attention ablation): the demo stream is the same, and observation frame t also
 attends to the tokens of observation frames 0..t of its sample (causal: a frame never sees a later one). Acting,
 the policy keeps the trunk features of its last frames and recomputes the observation stream over them; the demo
@@ -113,9 +119,48 @@ class NonLocalAttentionLayer(nn.Module):
     ) -> tuple[Tensor, Tensor | None]:
         """Each observation frame attends to [its own tokens, all demo tokens]; weights (B, heads, T, hw, hw + D*hw).
 
-        One softmax over both key sets, computed in two blocks so the demo keys are not copied per frame.
+        One softmax over both key sets. Without `return_weights` (training, and acting without recording attention)
+        this is one fused `scaled_dot_product_attention` call (`_obs_attention_fused`); the attention maps come from
+        the explicit two-block computation (`_obs_attention_explicit`), which gives the same output.
         """
         x = obs.movedim(1, -1)
+        if return_weights:
+            attended, weights = self._obs_attention_explicit(x, demo_k, demo_v)
+        else:
+            attended, weights = self._obs_attention_fused(x, demo_k, demo_v), None
+        return self._residual(x, attended).movedim(-1, 1), weights
+
+    def _obs_attention_fused(self, x: Tensor, demo_k: Tensor, demo_v: Tensor) -> Tensor:
+        """Channel-last x (B, T, h, w, C) -> attended (B, T, h, w, C), through one fused attention kernel.
+
+        Frames are folded into the batch: each of the B*T frames is one attention problem whose keys/values are
+        [its own h*w tokens, the sample's D*h*w demo tokens], so no mask is needed and no query-key pair outside
+        the pattern is computed (a masked kernel computes the masked pairs too). The price is a copy of the demo
+        keys/values per frame, about the size of the score matrix (B, heads, T, hw, hw + D*hw) that the explicit
+        path materialises and keeps for its backward, and that the kernel never forms. At the paper's sizes on one
+        CPU thread the attention itself (forward + backward) takes 0.65-0.85x the explicit computation's time; the
+        whole layer stack about 0.9x, as the projections and FFN cost the same in both
+        (pipelines/bench/policy_train_step.py). Tensors stay token-major, (frames, tokens, heads, C/heads) in
+        memory, the layout the CPU kernel reads, so no head split or merge copies them.
+        """
+        b, t, h, w, c = x.shape
+        n_h, hw = self.n_heads, h * w
+
+        def tokens(proj: nn.Conv3d) -> Tensor:  # (B, T, hw, heads, C/heads), contiguous
+            return self._pointwise(proj, x).reshape(b, t, hw, n_h, c // n_h)
+
+        def with_demo(own: Tensor, demo: Tensor) -> Tensor:  # -> (B*T, heads, hw + D*hw, C/heads)
+            demo = demo.transpose(1, 2).unsqueeze(1).expand(b, t, -1, -1, -1)  # views until the cat
+            return torch.cat([own, demo], dim=2).flatten(0, 1).transpose(1, 2)
+
+        q = tokens(self.query).flatten(0, 1).transpose(1, 2)  # (B*T, heads, hw, C/heads)
+        keys, values = with_demo(tokens(self.key), demo_k), with_demo(tokens(self.value), demo_v)
+        attended = F.scaled_dot_product_attention(q, keys, values, scale=1.0 / self.temperature)
+        return attended.transpose(1, 2).reshape(x.shape)
+
+    def _obs_attention_explicit(self, x: Tensor, demo_k: Tensor, demo_v: Tensor) -> tuple[Tensor, Tensor]:
+        """The same attention with its weights (B, heads, T, hw, hw + D*hw): scores in two blocks (own, demo) so
+        the demo keys are not copied per frame, one softmax over their concatenation."""
         q, k, v = self._qkv(x)
         b, n_h, t, hw, dh = q.shape
         q = q / self.temperature
@@ -124,8 +169,7 @@ class NonLocalAttentionLayer(nn.Module):
         weights = torch.softmax(torch.cat([own_scores, demo_scores], dim=-1), dim=-1)
         own_w, demo_w = weights.split([hw, demo_scores.shape[-1]], dim=-1)
         attended = own_w @ v + (demo_w.flatten(2, 3) @ demo_v).reshape(b, n_h, t, hw, dh)
-        out = self._residual(x, self._merge(attended, x)).movedim(-1, 1)
-        return out, (weights if return_weights else None)
+        return self._merge(attended, x), weights
 
     def forward_obs_causal(self, obs: Tensor, demo_k: Tensor, demo_v: Tensor) -> Tensor:
         """Full spatio-temporal pattern (T-OSIL): observation frame t attends to every demo token and to every

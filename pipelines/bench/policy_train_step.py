@@ -4,8 +4,12 @@
 
 Prints: seconds per training step (forward + backward + Adam + EMA update; batch 30, 4 demo + 7 observation
 frames at 100x180, 2 attention layers, contrastive before and after attention), peak resident memory, and the
-time of the attention stack alone, MOSAIC pattern vs every token attending to every token of all 11 frames
-(T-OSIL style), measured in the same run on the same features.
+time of the attention stack alone on the same features in the same run: the MOSAIC pattern through its fused
+attention kernel (training's path), the MOSAIC pattern through the explicit computation that also returns the
+attention maps (`return_weights=True`, what recording an episode uses), and the full spatio-temporal pattern
+(T-OSIL style: observation frames attend causally to all observation frames besides the demo), with the ratios
+MOSAIC/full and fused/explicit. The three are timed in interleaved rounds so that load from other processes
+falls on all of them alike.
 """
 
 import argparse
@@ -71,24 +75,32 @@ def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> li
     return times[1:]
 
 
-def time_attention(pattern: str, batch_size: int, feature_shape: tuple[int, int, int], repeats: int) -> float:
-    """Median seconds of forward + backward through the 2-layer attention stack on fixed features."""
+def time_attention(batch_size: int, feature_shape: tuple[int, int, int], repeats: int) -> dict[str, float]:
+    """Median seconds of forward + backward through the 2-layer attention stack on fixed features, per variant:
+    "fused" (MOSAIC pattern, no weights), "explicit" (MOSAIC pattern with weights), "full" (T-OSIL pattern)."""
     from mosaic_policy.common.attention import NonLocalAttentionStack
 
     c, h, w = feature_shape
     torch.manual_seed(0)
-    stack = NonLocalAttentionStack(c, 2, 4, 16.0, 0.0, pattern)
+    mosaic = NonLocalAttentionStack(c, 2, 4, 16.0, 0.0, "mosaic")
+    full = NonLocalAttentionStack(c, 2, 4, 16.0, 0.0, "full")
+    full.load_state_dict(mosaic.state_dict())
     demo = torch.randn(batch_size, c, 4, h, w, requires_grad=True)
     obs = torch.randn(batch_size, c, 7, h, w, requires_grad=True)
+    variants = {"fused": (mosaic, False), "explicit": (mosaic, True), "full": (full, False)}
     # One thread: the thread's CPU time is the work itself, robust to other processes sharing the cores.
     clock = time.thread_time if torch.get_num_threads() == 1 else time.perf_counter
-    times = []
-    for _ in range(repeats + 1):
-        start = clock()
-        demo_out, obs_out, _ = stack(demo, obs)
-        (demo_out.sum() + obs_out.sum()).backward()
-        times.append(clock() - start)
-    return statistics.median(times[1:])
+    times = {name: [] for name in variants}
+    for round_ in range(repeats + 1):  # the first round warms up
+        for name, (stack, return_weights) in variants.items():
+            start = clock()
+            demo_out, obs_out, _ = stack(demo, obs, return_weights)
+            (demo_out.sum() + obs_out.sum()).backward()
+            if round_:
+                times[name].append(clock() - start)
+            demo.grad = obs.grad = None
+            stack.zero_grad(set_to_none=True)
+    return {name: statistics.median(t) for name, t in times.items()}
 
 
 def main():
@@ -98,6 +110,7 @@ def main():
     parser.add_argument("--height", type=int, default=100)
     parser.add_argument("--width", type=int, default=180)
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    parser.add_argument("--attention-repeats", type=int, default=3, help="timed rounds of the attention comparison")
     parser.add_argument("--skip-train", action="store_true", help="only the attention comparison")
     args = parser.parse_args()
     if args.threads:
@@ -110,15 +123,24 @@ def main():
     feature_shape = ResNetTrunk().feature_shape(args.height, args.width)
     print(f"features per frame at {args.height}x{args.width}: {feature_shape}")
 
-    mosaic = time_attention("mosaic", args.batch_size, feature_shape, repeats=3)
-    full = time_attention("full", args.batch_size, feature_shape, repeats=3)
+    times = time_attention(args.batch_size, feature_shape, repeats=args.attention_repeats)
+    fused, explicit, full = times["fused"], times["explicit"], times["full"]
     tokens = feature_shape[1] * feature_shape[2]
-    pairs_mosaic = (4 * tokens) ** 2 + 7 * tokens * (tokens + 4 * tokens)
-    pairs_full = (11 * tokens) ** 2
+    # query-key pairs per sample and layer: demo self-attention, then the observation queries' keys
+    demo_pairs = (4 * tokens) ** 2
+    pairs_mosaic = demo_pairs + 7 * tokens * (tokens + 4 * tokens)
+    pairs_full = demo_pairs + 7 * tokens * (4 * tokens + 7 * tokens)  # what the masked kernel computes
+    pairs_causal = demo_pairs + sum(tokens * (4 * tokens + (t + 1) * tokens) for t in range(7))  # what the mask keeps
     clock = "thread CPU time" if torch.get_num_threads() == 1 else "wall time"
     print(
-        f"attention stack fwd+bwd ({clock}), batch {args.batch_size}: mosaic {mosaic * 1e3:.0f} ms, full spatio-temporal "
-        f"{full * 1e3:.0f} ms, ratio {mosaic / full:.2f} (query-key pairs ratio {pairs_mosaic / pairs_full:.2f})"
+        f"attention stack fwd+bwd ({clock}, median of {args.attention_repeats}), batch {args.batch_size}, "
+        f"4 demo + 7 observation frames:\n"
+        f"  mosaic fused {fused * 1e3:.0f} ms, mosaic explicit (with weights) {explicit * 1e3:.0f} ms, "
+        f"full (causal) {full * 1e3:.0f} ms\n"
+        f"  ratios: mosaic fused/full {fused / full:.2f}, mosaic explicit/full {explicit / full:.2f}, "
+        f"fused/explicit {fused / explicit:.2f}\n"
+        f"  query-key pairs mosaic/full {pairs_mosaic / pairs_full:.2f} as computed "
+        f"({pairs_mosaic / pairs_causal:.2f} of those the causal mask keeps)"
     )
 
     if not args.skip_train:

@@ -4,8 +4,9 @@ import math
 
 import pytest
 import torch
+from conftest import random_batch, small_config
 
-from mosaic_policy.common.attention import NonLocalAttentionStack, spatio_temporal_encoding
+from mosaic_policy.common.attention import NonLocalAttentionLayer, NonLocalAttentionStack, spatio_temporal_encoding
 from mosaic_policy.mosaic.contrastive import (
     TemporalContrastiveModule,
     ema_momentum,
@@ -15,6 +16,7 @@ from mosaic_policy.mosaic.contrastive import (
 )
 from mosaic_policy.common.discretized_logistic import DiscretizedLogisticMixture
 from mosaic_policy.common.resnet_trunk import ResNetTrunk
+from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
 
 def test_trunk_gives_256x7x12_features_at_100x180():
@@ -157,6 +159,109 @@ def test_demo_stream_is_updated_by_every_layer():
 def test_full_pattern_runs():
     demo_out, obs_out, _ = _stack("full")(torch.randn(1, 24, 4, 3, 5), torch.randn(1, 24, 3, 3, 5))
     assert demo_out.shape == (1, 24, 4, 3, 5) and obs_out.shape == (1, 24, 3, 3, 5)
+
+
+def _reference_forward_obs(layer, obs, demo_k, demo_v):
+    """forward_obs as it was computed before the fused kernel, written out with the layer's Conv3d modules: frame
+    t's queries against [its own h*w keys, all demo keys] (the demo keys repeated per frame), one softmax."""
+    b, c, t, h, w = obs.shape
+    n_h, hw = layer.n_heads, h * w
+
+    def heads(y):  # (B, C, T, h, w) -> (B, heads, T, hw, C/heads)
+        return y.movedim(1, -1).reshape(b, t, hw, n_h, c // n_h).permute(0, 3, 1, 2, 4)
+
+    def channel_last_norm(norm, y):
+        return norm(y.movedim(1, -1)).movedim(-1, 1)
+
+    q, k, v = heads(layer.query(obs)), heads(layer.key(obs)), heads(layer.value(obs))
+    keys = torch.cat([k, demo_k.unsqueeze(2).expand(-1, -1, t, -1, -1)], dim=3)
+    values = torch.cat([v, demo_v.unsqueeze(2).expand(-1, -1, t, -1, -1)], dim=3)
+    weights = torch.softmax(q @ keys.transpose(-1, -2) / layer.temperature, dim=-1)  # (B, heads, T, hw, hw + D*hw)
+    attended = (weights @ values).permute(0, 1, 4, 2, 3).reshape(b, c, t, h, w)  # heads-major channels
+    x = channel_last_norm(layer.norm_attention, obs + layer.out(attended))
+    return channel_last_norm(layer.norm_ffn, x + layer.ffn(x)), weights
+
+
+def _grads(outputs, inputs):
+    """Gradients of a fixed random weighting of the outputs (a plain sum would be flat through the LayerNorm)."""
+    g = torch.Generator().manual_seed(1)
+    loss = sum((o * torch.randn(o.shape, generator=g)).sum() for o in outputs)
+    return torch.autograd.grad(loss, inputs)
+
+
+@pytest.mark.parametrize("n_frames", [7, 1])
+def test_fused_observation_attention_matches_the_explicit_computation(n_frames):
+    """forward_obs without weights (one fused attention call) gives the explicit computation's output and
+    gradients, for the inputs, the cached demo keys/values (so the demo stream) and every parameter."""
+    torch.manual_seed(0)
+    layer = NonLocalAttentionLayer(channels=24, n_heads=3, temperature=16.0, dropout=0.0).eval()
+    demo = torch.randn(2, 24, 4, 3, 5, requires_grad=True)
+    obs = torch.randn(2, 24, n_frames, 3, 5, requires_grad=True)
+    inputs = (obs, demo, *layer.parameters())
+
+    def run(forward_obs):
+        demo_k, demo_v = layer.demo_keys_values(demo)  # the cache's layout, a view of channel-last tokens
+        out, weights = forward_obs(obs, demo_k, demo_v)
+        return out, weights, _grads([out], inputs)
+
+    reference, reference_weights, reference_grads = run(lambda *a: _reference_forward_obs(layer, *a))
+    fused, no_weights, fused_grads = run(lambda *a: layer.forward_obs(*a, return_weights=False))
+    explicit, weights, explicit_grads = run(lambda *a: layer.forward_obs(*a, return_weights=True))
+    assert no_weights is None
+    torch.testing.assert_close(fused, reference, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(explicit, reference, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(weights, reference_weights, rtol=1e-5, atol=1e-5)
+    # obs, demo and 16 parameter tensors; all but the key bias (it shifts every score of a query alike, which the
+    # softmax ignores) have a gradient clearly above the tolerance, so the comparison is not of zeros
+    assert len(fused_grads) == len(reference_grads) == 2 + 16
+    flat = [p is layer.key.bias for p in inputs]
+    for fused_grad, explicit_grad, reference_grad, is_flat in zip(
+        fused_grads, explicit_grads, reference_grads, flat, strict=True
+    ):
+        assert is_flat or reference_grad.abs().max() > 1e-2
+        torch.testing.assert_close(fused_grad, reference_grad, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(explicit_grad, reference_grad, rtol=1e-5, atol=1e-5)
+
+
+def test_the_batch_expanded_demo_cache_of_acting_gives_the_same_fused_output():
+    """Acting sets the demo once and expands its cache over the environments (a stride-0 batch dimension)."""
+    torch.manual_seed(0)
+    layer = NonLocalAttentionLayer(channels=24, n_heads=3, temperature=16.0).eval()
+    with torch.no_grad():
+        demo_k, demo_v = layer.demo_keys_values(torch.randn(1, 24, 4, 3, 5))
+        obs = torch.randn(3, 24, 1, 3, 5)
+        fused, _ = layer.forward_obs(obs, demo_k.expand(3, -1, -1, -1), demo_v.expand(3, -1, -1, -1))
+        reference, _ = _reference_forward_obs(layer, obs, demo_k.expand(3, -1, -1, -1), demo_v.expand(3, -1, -1, -1))
+    torch.testing.assert_close(fused, reference, rtol=1e-5, atol=1e-5)
+
+
+def test_mosaic_policy_loss_and_gradients_are_those_of_the_explicit_attention(monkeypatch):
+    """The whole MosaicPolicy forward (eval mode: no dropout, no augmentation) with the fused observation attention
+    equals the same forward with the explicit reference attention, loss and every parameter's gradient."""
+    torch.manual_seed(0)
+    policy = MosaicPolicy(small_config()).eval()
+    batch = random_batch(policy.config)
+    params = [p for p in policy.parameters() if p.requires_grad]
+
+    def loss_and_grads():
+        loss, _ = policy.forward(batch)
+        return loss, torch.autograd.grad(loss, params, allow_unused=True)
+
+    fused_loss, fused_grads = loss_and_grads()
+    monkeypatch.setattr(
+        NonLocalAttentionLayer,
+        "forward_obs",
+        lambda self, obs, demo_k, demo_v, return_weights=False: _reference_forward_obs(self, obs, demo_k, demo_v),
+    )
+    reference_loss, reference_grads = loss_and_grads()
+    torch.testing.assert_close(fused_loss, reference_loss, rtol=1e-5, atol=1e-5)
+    compared = 0
+    for fused_grad, reference_grad in zip(fused_grads, reference_grads, strict=True):
+        assert (fused_grad is None) == (reference_grad is None)
+        if fused_grad is not None:
+            torch.testing.assert_close(fused_grad, reference_grad, rtol=1e-5, atol=1e-5)
+            compared += 1
+    assert compared > len(params) // 2
 
 
 # -- contrastive -------------------------------------------------------------------------------------------
