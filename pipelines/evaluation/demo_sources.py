@@ -43,8 +43,8 @@ class DemoSourceSpec:
 
 
 class ExpertDemoSource:
-    """A new demonstration per episode, by the demonstrator's scripted expert (environments kept per variation,
-    built on first use: no GL context before a worker forks)."""
+    """A new demonstration per episode, by the demonstrator's scripted expert (one environment kept per task, serving
+    all its variations; built on first use: no GL context before a worker forks)."""
 
     def __init__(self, robot: str = DEMONSTRATOR, image_hw: tuple[int, int] = (IMAGE_HEIGHT, IMAGE_WIDTH)) -> None:
         self.robot = robot
@@ -55,9 +55,8 @@ class ExpertDemoSource:
         """The expert's demonstration from ``seed`` (an episode's demo seed, see :mod:`.seeds`); its retries step
         by DEMO_RETRY_STRIDE, clear of the other episodes' seeds."""
         height, width = self.image_hw
-        env = self._envs.get(
-            (task, variation), lambda: make_task_env(task, variation, self.robot, image_height=height, image_width=width)
-        )
+        env = self._envs.get(task, lambda: make_task_env(task, variation, self.robot, image_height=height, image_width=width))
+        env.set_variation(variation)  # one scene per task serves all its variations (a seeded reset follows)
         return record_demonstration(env, seed, pick_frames, retry_stride=DEMO_RETRY_STRIDE)
 
     def close(self) -> None:

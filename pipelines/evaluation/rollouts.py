@@ -138,7 +138,7 @@ class RolloutWorker:
             source = self._demo_source(agent_spec.image_hw)
             demo = source.demonstration(spec.task, spec.variation, spec.demo_seed, None if record else pick)
             demo_s = time.perf_counter() - start
-        observation, info = env.reset(seed=spec.seed)
+        observation, info = env.reset(seed=spec.seed, options={"variation": spec.variation})
         goals = GoalTracker(env.task_env)
         agent.start_episode(env, demo)
         recording = None
@@ -193,10 +193,12 @@ class RolloutWorker:
         return self._demo_sources[image_hw]
 
     def _env(self, task: str, variation: int, image_hw: tuple[int, int], camera: bool) -> MosaicGymEnv:
+        """The agent's environment: one scene per task (and camera) serves all its variations, each episode's reset
+        names its variation; building a scene costs seconds and memory the worker does not get back."""
         horizon = get_task_class(task).horizon_steps
         horizon = min(horizon, self.max_steps) if self.max_steps else horizon
         return self._envs.get(
-            (task, variation, image_hw, camera),
+            (task, image_hw, camera),
             lambda: MosaicGymEnv(
                 task, variation, robot="panda", image_height=image_hw[0], image_width=image_hw[1],
                 observe_image=camera, horizon=horizon,
