@@ -112,10 +112,10 @@ def main() -> None:
         )
         if workers == 1:
             one = rate
-            line += f"; overhead vs bare: end to end {bare / rate - 1:+.0%}, steady state {bare / steady - 1:+.0%}"
+            line += f"; vs bare 1 process: {rate / bare:.2f}x end to end, {steady / bare:.2f}x steady state"
         else:
             line += (f"; speed-up vs 1 worker: {rate / one:.2f}x end to end; "
-                     f"vs 2 bare processes: {rate / bare_two - 1:+.0%} end to end, {2 * steady / bare_two - 1:+.0%} steady state")
+                     f"vs 2 bare processes: {rate / bare_two:.2f}x end to end, {workers * steady / bare_two:.2f}x steady state")
         print(line, flush=True)
 
 
