@@ -135,6 +135,10 @@ def _on_workers(
         for reader in readers:
             reader.close()
         tasks.cancel_join_thread()
+        # End the queue's feeder thread now. Left running, it held the queue's semaphore until the interpreter shut
+        # down, and freeing it from that thread then could unlink it without telling the resource tracker, which
+        # printed "leaked semaphore" warnings after our last line (seen after a worker was killed).
+        tasks.close()
 
 
 def _collect(processes: list, readers: list, total: int) -> Iterator[EpisodeResult]:
