@@ -440,10 +440,10 @@ def size_render_buffers(xml: str, height: int, width: int, shadows: bool) -> str
     """The model XML with MuJoCo's offscreen buffer the size of the frame, and no shadow map when shadows are off.
 
     MuJoCo allocates its render buffers from the model's ``<visual>`` settings when the render context is made:
-    by default a 640x480 offscreen framebuffer (4x multisampled) and a 4096x4096 shadow map, 210 MB of a
-    scene's memory although ``fast_render`` draws no shadows and frames are 100x180. Every frame also clears the
-    whole framebuffer, so a buffer the size of the frame is cheaper per frame too. The viewport and the pixels
-    drawn are the same, so the frames are the same (tested).
+    by default a 640x480 offscreen framebuffer (4x multisampled) and a 4096x4096 shadow map, although
+    ``fast_render`` draws no shadows and frames are 100x180. Sized down they save about 80 MB per scene
+    (``pipelines/bench/render_bench.py``); the software renderer takes as long per frame either way. The viewport
+    and the pixels drawn are the same, so the frames are the same (tested).
     """
     root = ET.fromstring(xml)
     visual = root.find("visual")
