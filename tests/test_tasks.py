@@ -7,14 +7,17 @@ import numpy as np
 import pytest
 
 import mosaic_data  # noqa: F401  (registers the gymnasium environments)
-from mosaic_data.collection.validate import action_jumps
+from mosaic_data.collection.validate import action_jumps, longest_hold
 from mosaic_data.envs import gym_id
-from mosaic_data.experts import make_expert
+from mosaic_data.experts import EXPERTS, make_expert
+from mosaic_data.experts.base import GraspingExpert
 from mosaic_data.rollout import run_expert_episode
 from mosaic_data.tasks import TASKS, get_task_class, make_task_env
 from mosaic_data.tasks.base import IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM
 
 ROBOTS = ("panda", "sawyer")
+NON_GRASPING_MAX_HOLD = 2
+"""Where the fingers only push (door, drawer, buttons), the experts never hold still longer than this."""
 TASK_ROBOT = [(task, robot) for task in TASKS for robot in ROBOTS]
 
 
@@ -71,6 +74,9 @@ def test_expert_succeeds_on_every_variation(task_env_cache, task, robot):
         assert np.linalg.norm(rotations, axis=1).max() < 2.5, f"{task}/{robot}/{variation}: rotation near the chart's edge"
         jumps = action_jumps(episode.actions)
         assert max(jumps["rx"], jumps["ry"], jumps["rz"]) <= 0.1, f"{task}/{robot}/{variation}: rotation jumps {jumps}"
+        if not issubclass(EXPERTS[task], GraspingExpert):  # a one-frame policy would stall in a hold
+            hold, step = longest_hold(episode.actions)
+            assert hold <= NON_GRASPING_MAX_HOLD, f"{task}/{robot}/{variation}: holds still {hold} steps from step {step}"
     assert not failures, f"{task}/{robot}: expert failed on variations {failures}"
 
 

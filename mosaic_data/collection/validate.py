@@ -85,7 +85,9 @@ def validate_dataset(root: Path, warnings: list[str] | None = None) -> tuple[str
         if current and not records:
             problems.append(f"{sidecar_file} describes none of the {len(current)} episodes: it belongs to another dataset")
         descriptions = variation_descriptions(sidecar)
-        _check_frames(data, records, tasks, descriptions, problems)
+        holds = _check_frames(data, records, tasks, descriptions, problems)
+        if (warning := hold_warning(holds)) is not None:
+            warnings.append(warning)
         if aligned.changed_data:
             problems.append(
                 f"episodes {listed(aligned.changed_data)}: their actions differ from the ones collected (data_digest "
@@ -147,8 +149,13 @@ def _read_tasks(root: Path, problems: list[str]) -> dict[int, str]:
     return {int(index): str(task) for task, index in zip(tasks.index, tasks["task_index"])}
 
 
-def _check_frames(data, records: list[dict], tasks: dict[int, str], descriptions: dict, problems: list[str]) -> None:
+def _check_frames(
+    data, records: list[dict], tasks: dict[int, str], descriptions: dict, problems: list[str]
+) -> dict[int, int]:
+    """Checks every recorded episode's frames; returns each episode's longest hold (:func:`longest_hold`)."""
     import numpy as np
+
+    holds: dict[int, int] = {}
 
     by_episode = {int(index): frames for index, frames in data.groupby("episode_index")}
     for record in records:
@@ -171,11 +178,14 @@ def _check_frames(data, records: list[dict], tasks: dict[int, str], descriptions
         variations = set(np.asarray(frames["variation"].tolist()).reshape(-1).tolist())
         if variations != {record["variation"]}:
             problems.append(f"{where}: variation column {sorted(variations)}, meta/mosaic.json says {record['variation']}")
-        _check_action_jumps(np.asarray(frames["action"].tolist(), dtype=float), where, problems)
+        actions = np.asarray(frames["action"].tolist(), dtype=float)
+        _check_action_jumps(actions, where, problems)
+        holds[index] = longest_hold(actions)[0]
         task_strings = {tasks.get(int(task_index), "?") for task_index in frames["task_index"]}
         expected = descriptions.get((record["task"], record["variation"]))
         if task_strings != {expected}:
             problems.append(f"{where}: task string {sorted(task_strings)}, expected {expected!r}")
+    return holds
 
 
 def action_jumps(actions) -> dict[str, float]:
@@ -186,6 +196,57 @@ def action_jumps(actions) -> dict[str, float]:
     if len(actions) < 2:
         return {name: 0.0 for name in ACTION_NAMES}
     return dict(zip(ACTION_NAMES, np.abs(np.diff(actions, axis=0)).max(axis=0).tolist(), strict=True))
+
+
+HOLD_STILL_M = 0.0025
+"""A control step whose position target moves less than this holds the hand still."""
+HOLD_IGNORED_FIRST, HOLD_IGNORED_LAST = 3, 10
+"""Steps at an episode's start (the arm leaving rest) and end (the goal reached) that holds are not counted in."""
+
+
+def still_steps(actions) -> np.ndarray:
+    """Per step of an episode: whether its position target moved less than ``HOLD_STILL_M`` from the step before."""
+    import numpy as np
+
+    positions = np.asarray(actions, dtype=float).reshape(len(actions), -1)[:, :3]
+    moves = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    return np.concatenate([[False], moves < HOLD_STILL_M])
+
+
+def longest_hold(actions) -> tuple[int, int]:
+    """``(length, first step)`` of the longest run of still steps of an episode, outside its first
+    ``HOLD_IGNORED_FIRST`` and last ``HOLD_IGNORED_LAST`` steps; ``(0, -1)`` if there is none.
+
+    A policy sees one frame: where the hand holds still while the only change is one a frame barely shows
+    (fingers closing in the air, a settle), the next action is ambiguous from the image and a policy stalls
+    there. The statistic finds such holds in expert data."""
+    still = still_steps(actions)
+    still[:HOLD_IGNORED_FIRST] = False
+    if HOLD_IGNORED_LAST:
+        still[max(0, len(still) - HOLD_IGNORED_LAST):] = False
+    best, best_start, run = 0, -1, 0
+    for step, is_still in enumerate(still):
+        run = run + 1 if is_still else 0
+        if run > best:
+            best, best_start = run, step - run + 1
+    return best, best_start
+
+
+POLICY_STEP = 5
+"""Control steps per policy query (the policies' default ``action_chunk``; the paper repeats each action 5 times)."""
+
+
+def hold_warning(holds: dict[int, int]) -> str | None:
+    """One line naming the episodes whose longest hold is longer than a policy step, or None."""
+    long = {index: hold for index, hold in holds.items() if hold > POLICY_STEP}
+    if not long:
+        return None
+    worst = max(long, key=long.get)
+    return (
+        f"{_plural(len(long), 'episode')} of {len(holds)} hold the hand still longer than a policy step "
+        f"({POLICY_STEP} control steps; longest: {long[worst]} steps in episode {worst}): a policy that sees one frame "
+        "may stall where the frame barely changes (see 'Experts a policy can imitate' in the README)"
+    )
 
 
 def _check_action_jumps(actions, where: str, problems: list[str]) -> None:

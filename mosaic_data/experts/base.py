@@ -41,6 +41,8 @@ class Phase:
         min_steps / max_steps: bounds on the phase's duration in control steps (``max_steps`` gives up).
         orientation: target orientation; defaults to the expert's ``orientation``.
         max_step_m: overrides the expert's speed limit for this phase (slow, careful moves).
+        paced: slow the move so that the hand arrives as its turn ends, instead of arriving first and waiting
+            for the wrist (a hold that a policy, seeing one frame, cannot tell from arriving).
     """
 
     name: str
@@ -52,6 +54,7 @@ class Phase:
     max_steps: int = 80
     orientation: Rotation | None = None
     max_step_m: float | None = None
+    paced: bool = False
 
 
 class ScriptedExpert:
@@ -104,6 +107,26 @@ class ScriptedExpert:
 
         return target
 
+    def command_arrived(
+        self, target: Callable[[], np.ndarray], tolerance_m: float = 0.005, arm_within_m: float | None = None
+    ) -> Callable[[], bool]:
+        """A ``done`` predicate: the commanded pose is at ``target()`` and fully turned (and, with
+        ``arm_within_m``, the arm's grip site is that close to it).
+
+        Ends a move as soon as the command arrives (or the arm is close enough), so that the next phase moves the
+        command on while the arm catches up, instead of holding the command still until the arm is there."""
+
+        def arrived() -> bool:
+            if self._command_pos is None or self._command_rot is None:
+                return False
+            goal = target()
+            turned = (self._command_rot.inv() * self.orientation).magnitude() < 1e-3
+            if not (turned and np.linalg.norm(self._command_pos - goal) < tolerance_m):
+                return False
+            return arm_within_m is None or bool(np.linalg.norm(self.env.eef_pos - goal) < arm_within_m)
+
+        return arrived
+
     @property
     def phase_name(self) -> str:
         if self._phases is None:
@@ -122,7 +145,11 @@ class ScriptedExpert:
             self._command_rot = self.env.eef_rotation
         phase = self._phases[min(self._phase_index, len(self._phases) - 1)]
         target = np.asarray(phase.target(), dtype=float)
-        action = self._step_towards(target, phase.orientation or self.orientation, phase.max_step_m, phase.gripper)
+        orientation = phase.orientation or self.orientation
+        max_step = self.max_step_m if phase.max_step_m is None else phase.max_step_m
+        if phase.paced:
+            max_step = self._paced_step(target, orientation, max_step)
+        action = self._step_towards(target, orientation, max_step, phase.gripper)
         self._advance(phase, target)
         return action
 
@@ -131,8 +158,15 @@ class ScriptedExpert:
         raise NotImplementedError
 
     # ------------------------------------------------------------------ internals
-    def _step_towards(self, target: np.ndarray, orientation: Rotation, max_step: float | None, gripper: float) -> np.ndarray:
-        max_step = self.max_step_m if max_step is None else max_step
+    def _paced_step(self, target: np.ndarray, orientation: Rotation, max_step: float) -> float:
+        """The position step that makes the commanded position reach ``target`` as the commanded turn ends."""
+        turn_steps = np.ceil((self._command_rot.inv() * orientation).magnitude() / self.max_turn_rad)
+        distance = float(np.linalg.norm(target - self._command_pos))
+        if turn_steps <= 0 or distance / max_step >= turn_steps:
+            return max_step
+        return distance / turn_steps
+
+    def _step_towards(self, target: np.ndarray, orientation: Rotation, max_step: float, gripper: float) -> np.ndarray:
         delta = target - self._command_pos
         distance = np.linalg.norm(delta)
         if distance > max_step:
@@ -162,11 +196,33 @@ class ScriptedExpert:
             self._phase_steps = 0
 
 
+FINGERS_CLOSING_M = 0.15
+"""The fingers count as closed on an object once their opening (0..1) fell this much since the grasp began ..."""
+FINGERS_STILL = 0.01
+"""... and changed less than this in the last control step."""
+GRASP_MIN_STEPS, GRASP_MAX_STEPS = 3, 14
+
+
 class GraspingExpert(ScriptedExpert):
     """An expert that carries an object: if the object is not in the hand during a carrying phase, start over."""
 
     carrying_phases: tuple[str, ...] = ("carry",)
     max_retries: int = 2
+
+    def grasp_phase(self, name: str, target: Callable[[], np.ndarray], **options) -> Phase:
+        """Close the fingers at ``target`` and end as soon as they have closed on the object: the hand holds
+        still only as long as the fingers need (a policy seeing one frame cannot tell how far they are)."""
+        openings: list[float] = []
+
+        def closed_on_object() -> bool:
+            opening = float(self.env.robot_state()[-1])
+            openings.append(opening)
+            return len(openings) > 1 and openings[0] - opening > FINGERS_CLOSING_M and abs(openings[-2] - opening) < FINGERS_STILL
+
+        return Phase(
+            name, target, GRIPPER_CLOSED, tolerance_m=0.0, done=closed_on_object, min_steps=GRASP_MIN_STEPS,
+            max_steps=GRASP_MAX_STEPS, **options,
+        )
 
     def act(self, obs=None, env=None) -> np.ndarray:
         if self.phase_name in self.carrying_phases and not self.holding() and self.retries < self.max_retries:

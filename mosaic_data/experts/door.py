@@ -1,5 +1,10 @@
 """Door expert: reach the handle bar past the door's free edge, then swing it about the hinge.
 
+The fingers close at the start and stay closed (they push and hook, they never grasp), and the approach is
+paced so that the hand arrives above the handle as its turn ends: the motion has no stop whose only change is
+one a camera frame barely shows (fingers closing in the air, a wrist finishing its turn), where a policy that
+sees one frame would not know whether to go on.
+
 Push: the closed fingers go down just in front of the bar and press its robot-side face.
 Pull: the closed fingers go straight down into the gap between the bar and the door plane (past the door's
 free edge nothing stands behind the bar) and hook the bar's back.
@@ -13,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, top_down
+from mosaic_data.experts.base import GRIPPER_CLOSED, Phase, ScriptedExpert, top_down
 from mosaic_data.tasks.door import OPENING_PER_YAW, SUCCESS_ANGLE_RAD, Door
 
 APPROACH_HEIGHT_M = 0.12
-"""Above the handle bar, where the fingers close; the door's top edge is 0.074 m above the bar."""
+"""Above the handle bar, where the descent starts; the door's top edge is 0.074 m above the bar."""
 PUSH_STANDOFF_M = 0.04
 """Gap between the fingers and the bar's robot-side face when they go down (push)."""
 PULL_GAP_FRACTION = 0.5
@@ -31,6 +36,13 @@ ENGAGED_ANGLE_RAD = 0.03
 LEAD_ANGLE_RAD = 0.25
 TARGET_ANGLE_RAD = SUCCESS_ANGLE_RAD + 0.2
 SETTLED_TURN_RAD = 0.1
+LOWER_M = 0.04
+LOWER_STEP_M = 0.004
+LOWERED_TOLERANCE_M = 0.015
+"""The approach's command ends above the handle; the first ``LOWER_M`` down go at ``LOWER_STEP_M`` per step
+while the arm, lagging the command by centimetres, catches up and finishes its turn (within
+``LOWERED_TOLERANCE_M`` and ``SETTLED_TURN_RAD``). The command keeps moving: a policy seeing one frame cannot
+tell a stop to settle from an arrival."""
 HAND_YAW_RAD = {"left": np.pi / 2, "right": -np.pi / 2}
 """Top-down hand turned so that the fingers spread along the closed door's plane, the hand's x axis pointing
 to the door's free edge (mirror-symmetric for the mirrored doors)."""
@@ -76,18 +88,29 @@ class DoorExpert(ScriptedExpert):
             self.orientation = top_down(hand_yaw + yaw - angle0)
             return on_arc(yaw + offset_rad)
 
-        def settled_above() -> bool:
+        lowered = above - np.array([0.0, 0.0, LOWER_M])
+
+        def turned_over(point: np.ndarray):
             """Over the handle and turned: turning the wrist fast on the way down would throw the fingers off."""
-            turned = (env.eef_rotation.inv() * self.orientation).magnitude() < SETTLED_TURN_RAD
-            return turned and np.linalg.norm(env.eef_pos - above) < 0.015
+
+            def check() -> bool:
+                turned = (env.eef_rotation.inv() * self.orientation).magnitude() < SETTLED_TURN_RAD
+                return turned and np.linalg.norm(env.eef_pos - point) < LOWERED_TOLERANCE_M
+
+            return check
 
         def swung_enough() -> bool:
             return sign * env.opening_angle(door) > TARGET_ANGLE_RAD
 
         return [
-            Phase("approach", lambda: above, GRIPPER_OPEN, tolerance_m=0.0, done=settled_above, max_steps=60),
             Phase(
-                "close", lambda: above, GRIPPER_CLOSED, tolerance_m=0.0, done=settled_above, min_steps=5, max_steps=12
+                "approach", lambda: above, GRIPPER_CLOSED, tolerance_m=0.0, done=self.command_arrived(lambda: above),
+                max_steps=60, paced=True,
+            ),
+            # The first centimetres down are slow, for the arm to catch up with the command and finish its turn.
+            Phase(
+                "lower", lambda: lowered, GRIPPER_CLOSED, tolerance_m=0.0, done=turned_over(lowered), max_steps=25,
+                max_step_m=LOWER_STEP_M,
             ),
             Phase("descend", lambda: down, GRIPPER_CLOSED, tolerance_m=0.012, max_steps=40, max_step_m=0.01),
             Phase(

@@ -21,6 +21,9 @@ from mosaic_data.experts.base import GRIPPER_CLOSED, Phase, ScriptedExpert, top_
 from mosaic_data.tasks.drawer import DRAWER_KEYS, SUCCESS_FRACTION, Drawer
 
 APPROACH_HEIGHT_M = 0.10
+ALIGN_DESCENT_M = 0.05
+ALIGN_STEPS = 10
+"""The first ``ALIGN_DESCENT_M`` of the descent are slow, over ``ALIGN_STEPS`` steps, for the arm to settle."""
 FINGER_HALF_THICKNESS_M = 0.012
 """Half thickness of the closed fingers around the grip site, across their spreading direction."""
 FINGER_HALF_WIDTH_M = 0.03
@@ -28,6 +31,12 @@ FINGER_HALF_WIDTH_M = 0.03
 HOOK_CLEARANCE_M = 0.008
 """Gap left between the bar and the fingers' robot-side face when the hook drops in (it closes when pulling)."""
 PUSH_STANDOFF_M = 0.035
+HOOK_TOLERANCE_M = np.array([0.008, 0.025, 0.008])
+PUSH_TOLERANCE_M = np.array([0.02, 0.025, 0.015])
+"""How far off its target along x, y, z the hand may be to go on. Along the bar (y) the hand has room (the
+Sawyer lags on its right); the hook drops into an 8 mm gap; the pushing fingers only need to stay in front of
+the bar (``PUSH_STANDOFF_M``) and below its top. Going on while the integrated tracking offset still pulls the
+arm over avoids a stop that the camera can barely see."""
 LEAD_M = 0.04
 """How far the target runs ahead of the handle while the drawer slides."""
 HOOK_BELOW_BAR_M = 0.004
@@ -59,12 +68,14 @@ class DrawerExpert(ScriptedExpert):
             # Grip site when the fingers touch the bar's far side, and the clearance left when dropping in.
             contact = np.array([bar_radius + FINGER_HALF_THICKNESS_M, self._side_shift(drawer), -HOOK_BELOW_BAR_M])
             clearance = HOOK_CLEARANCE_M
+            tolerance = HOOK_TOLERANCE_M
         else:  # in front of the bar, then push away from the robot (+x)
             # Hand's long side towards the cabinet; of the two equivalent yaws, the Sawyer tracks this one better.
             self.orientation = top_down(-np.pi / 2)
             direction = np.array([1.0, 0.0, 0.0])
             contact = np.array([-(bar_radius + FINGER_HALF_WIDTH_M), 0.0, -PUSH_BELOW_BAR_M])
             clearance = PUSH_STANDOFF_M
+            tolerance = PUSH_TOLERANCE_M
         lift = np.array([0.0, 0.0, APPROACH_HEIGHT_M])
 
         def contact_point() -> np.ndarray:
@@ -83,27 +94,29 @@ class DrawerExpert(ScriptedExpert):
             return fraction > OPEN_TARGET_FRACTION if opening else fraction < CLOSE_TARGET_FRACTION
 
         above = engage_point() + lift
+        halfway = above - np.array([0.0, 0.0, ALIGN_DESCENT_M])
 
         def near(target: Callable[[], np.ndarray]) -> Callable[[], bool]:
-            # Along the bar (y) the hand has room, so a larger error there is fine (the Sawyer lags on its right).
             def check() -> bool:
                 error = np.abs(env.eef_pos - target())
-                return bool(error[0] < 0.008 and error[1] < 0.025 and error[2] < 0.008)
+                return bool(np.all(error < tolerance))
 
             return check
 
         return [
-            Phase("approach", lambda: above, GRIPPER_CLOSED, tolerance_m=0.02, max_steps=60),
-            # Settle above the handle first: the fast approach leaves the arm (mostly the Sawyer) overshooting.
+            Phase("approach", lambda: above, GRIPPER_CLOSED, tolerance_m=0.0, done=self.command_arrived(lambda: above), max_steps=60, paced=True),
+            # Settle on the way down: the fast approach leaves the arm (mostly the Sawyer) overshooting, and a slow
+            # first half of the descent integrates that out while the hand keeps moving (a policy seeing one frame
+            # cannot tell a stop to settle from an arrival).
             Phase(
                 "align",
-                lambda: above,
+                lambda: halfway,
                 GRIPPER_CLOSED,
                 tolerance_m=0.008,
-                done=near(lambda: above),
-                min_steps=10,
+                done=near(lambda: halfway),
+                min_steps=ALIGN_STEPS,
                 max_steps=25,
-                max_step_m=0.005,
+                max_step_m=ALIGN_DESCENT_M / ALIGN_STEPS,
             ),
             Phase(
                 "descend",

@@ -39,6 +39,8 @@ LIFTED_M = 0.03
 """The item counts as in the hand when its bottom is this far above the table after the lift."""
 MAX_RETRIES = 2
 TURNED_RAD = 0.25
+TURN_RISE_M = 0.05
+"""The hand rises this much while it turns on the spot before the approach."""
 SETTLED_M = 0.004
 SETTLED_SPEED_M = 0.002
 """Largest move of the grip site in one control step for the hand to count as at rest."""
@@ -145,7 +147,11 @@ class PickPlaceExpert(GraspingExpert):
 
         return [
             # Turn the hand on the spot first: turning while reaching over the items makes the arms' wrists flip.
-            Phase("turn", self.frozen("turn", lambda: env.eef_pos), GRIPPER_OPEN, tolerance_m=0.0, done=turned, max_steps=20),
+            # Rising while it turns: the hand keeps moving, and further from the items.
+            Phase(
+                "turn", self.frozen("turn", lambda: env.eef_pos + up * TURN_RISE_M), GRIPPER_OPEN, tolerance_m=0.0,
+                done=turned, max_steps=20, paced=True,
+            ),
             Phase("approach", lambda: grasp_point() + up * (height - GRASP_DEPTH_M + APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.02, max_steps=60, max_step_m=0.02),
             # Settle above the item: the Sawyer's lag changes on the way and must be integrated out before the
             # fingers go down on either side of the item.
@@ -155,7 +161,7 @@ class PickPlaceExpert(GraspingExpert):
                 "descend", descend_target, GRIPPER_OPEN, tolerance_m=0.0, done=at_grasp_point,
                 max_steps=DESCEND_MAX_STEPS, max_step_m=DESCEND_STEP_M,
             ),
-            Phase("grasp", self.frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
+            self.grasp_phase("grasp", self.frozen("grasp", grasp_point)),
             Phase("lift", self.frozen("lift", lambda: env.eef_pos + up * lift_dz), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=40, max_step_m=0.01),
             Phase("carry", lambda: over_bin(carry_height), GRIPPER_CLOSED, tolerance_m=0.015, max_steps=60, max_step_m=0.02),
             Phase("lower", lambda: over_bin(PLACE_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.006, done=touching, max_steps=40, max_step_m=0.01),

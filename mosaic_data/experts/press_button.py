@@ -1,5 +1,8 @@
-"""Press-button expert: close the hand above the asked button, lower the fingertips onto its cap, press it
+"""Press-button expert: move the closed hand above the asked button, lower the fingertips onto its cap, press it
 down until it is pressed, then lift.
+
+The fingers close at the start, while the arm moves, and the hand goes on down without a stop above the
+button: a policy that sees one frame cannot tell fingers closing in the air from an arrival, and stalls there.
 
 The hand points straight down with its wide palm spanning world x (across the machine, towards and away
 from the robot), so it never reaches over the neighbouring buttons, which stand along y. The press target lies
@@ -11,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, Phase, ScriptedExpert, TOP_DOWN
+from mosaic_data.experts.base import GRIPPER_CLOSED, Phase, ScriptedExpert, TOP_DOWN
 from mosaic_data.tasks.press_button import BUTTON_TRAVEL_M, PressButton
 
 APPROACH_HEIGHT_M = 0.10
@@ -45,8 +48,7 @@ class PressButtonExpert(ScriptedExpert):
             return bool(env.press_fractions()[index] >= DONE_FRACTION)
 
         return [
-            Phase("approach", lambda: above, GRIPPER_OPEN, tolerance_m=0.015, max_steps=60),
-            Phase("close", lambda: above, GRIPPER_CLOSED, tolerance_m=0.02, min_steps=8, max_steps=20),
+            Phase("approach", lambda: above, GRIPPER_CLOSED, tolerance_m=0.015, max_steps=60),
             Phase("descend", lambda: hover, GRIPPER_CLOSED, tolerance_m=0.015, max_steps=40, max_step_m=0.008),
             Phase("press", lambda: pressed, GRIPPER_CLOSED, tolerance_m=0.0, done=button_down, max_steps=40, max_step_m=0.004),
             Phase("lift", lambda: above, GRIPPER_CLOSED, tolerance_m=0.02, max_steps=30, max_step_m=0.008),

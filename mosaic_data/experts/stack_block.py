@@ -16,6 +16,10 @@ from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExper
 from mosaic_data.tasks.stack_block import CUBE_HALF_SIZE_M, StackBlock
 
 APPROACH_HEIGHT_M = 0.10
+ALIGNED_M = 0.01
+AT_GRASP_M = 0.006
+"""The hand goes on down once the arm is this close to the point over the cube, and starts closing once it is
+this close to the grasp point (the command is already there)."""
 """Hover height above a grasp or place point before going down."""
 HOVER_HEIGHT_M = 0.06
 """Height above the grasp point where the hand settles before the fingers go down around the cube (the
@@ -73,14 +77,28 @@ class StackBlockExpert(GraspingExpert):
         def touching() -> bool:
             return env.check_contact(env.cubes[picked], env.cubes[base])
 
+        def hover() -> np.ndarray:
+            return grasp_point() + up * HOVER_HEIGHT_M
+
         carry_orientation = top_down(place_yaw)
         return [
-            Phase("approach", lambda: grasp_point() + up * APPROACH_HEIGHT_M, GRIPPER_OPEN, tolerance_m=0.015, max_steps=60),
+            Phase(
+                "approach", lambda: grasp_point() + up * APPROACH_HEIGHT_M, GRIPPER_OPEN, tolerance_m=0.0,
+                done=self.command_arrived(lambda: grasp_point() + up * APPROACH_HEIGHT_M), max_steps=60, paced=True,
+            ),
             # Settle above the cube: the Sawyer's lag changes on the way and must be integrated out before the
             # fingers go down on either side of the cube.
-            Phase("align", lambda: grasp_point() + up * HOVER_HEIGHT_M, GRIPPER_OPEN, tolerance_m=0.005, min_steps=3, max_steps=30, max_step_m=0.006),
-            Phase("descend", grasp_point, GRIPPER_OPEN, tolerance_m=0.006, max_steps=30, max_step_m=0.006),
-            Phase("grasp", self.frozen("grasp", grasp_point), GRIPPER_CLOSED, tolerance_m=0.0, min_steps=10, max_steps=10),
+            Phase(
+                "align", hover, GRIPPER_OPEN, tolerance_m=0.0, done=self.command_arrived(hover, arm_within_m=ALIGNED_M),
+                max_steps=30, max_step_m=0.006,
+            ),
+            # The fingers start closing once the command is at the grasp point and the arm nearly there: they take
+            # a few steps to reach the cube, in which the arm settles.
+            Phase(
+                "descend", grasp_point, GRIPPER_OPEN, tolerance_m=0.0,
+                done=self.command_arrived(grasp_point, arm_within_m=AT_GRASP_M), max_steps=30, max_step_m=0.006,
+            ),
+            self.grasp_phase("grasp", self.frozen("grasp", grasp_point)),
             Phase("lift", self.frozen("lift", lambda: env.eef_pos + up * CARRY_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.02, max_steps=30, max_step_m=0.01),
             Phase(
                 "carry", lambda: place_point(CARRY_HEIGHT_M), GRIPPER_CLOSED, tolerance_m=0.012, max_steps=60,

@@ -132,3 +132,24 @@ def test_validate_reports_an_action_jump_that_no_motion_explains():
     flipped[12:, 3] = -3.1  # +pi -> -pi: the same orientation, a 6.2 rad jump of the numbers
     _check_action_jumps(flipped, "episode 3", problems)
     assert len(problems) == 1 and problems[0].startswith("episode 3: action rx jumps by 6.200 rad")
+
+
+def test_validate_warns_on_a_hold_longer_than_a_policy_step(damaged_copy, capsys, cli):
+    """The collected door episodes keep moving; the same episode with its action held for 8 steps mid-episode
+    (a stop a policy seeing one frame cannot tell from an arrival) gets one warning line naming it."""
+    import numpy as np
+    import pandas as pd
+
+    assert cli("validate", str(damaged_copy)) == 0
+    assert "hold the hand still" not in capsys.readouterr().out
+    data_file = next((damaged_copy / "data").rglob("*.parquet"))
+    frames = pd.read_parquet(data_file)
+    first = frames.index[frames["episode_index"] == frames["episode_index"].iloc[0]]
+    held = np.asarray(frames.loc[first[10], "action"])
+    for row in first[11:19]:
+        frames.at[row, "action"] = held
+    frames.to_parquet(data_file)
+    warnings: list[str] = []
+    validate_dataset(damaged_copy, warnings)
+    hold_lines = [line for line in warnings if "hold the hand still" in line]
+    assert len(hold_lines) == 1 and "longest: 8 steps in episode 0" in hold_lines[0], warnings
