@@ -76,6 +76,16 @@ def parse_image_size(text: str) -> tuple[int, int]:
     return height, width
 
 
+def action_noise(text: str):
+    """``--action-noise POS_STD_M[,ROT_STD_RAD]`` -> :class:`mosaic_data.action_noise.ActionNoise`, or None for zero."""
+    from mosaic_data.action_noise import parse_action_noise  # numpy only
+
+    try:
+        return parse_action_noise(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def add_executor_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     """``--executor`` and ``--ray-address``, shared by ``mosaic-data collect`` and ``mosaic-eval``."""
     parser.add_argument(

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mosaic_data.action_noise import ActionNoise
 from mosaic_data.collection.schema import ACTION_NAMES
 from mosaic_data.experts import make_expert
 from mosaic_data.tasks import make_task_env
@@ -30,6 +31,7 @@ class Episode:
     length: int = 0
     states: list[np.ndarray] = field(default_factory=list)
     actions: list[np.ndarray] = field(default_factory=list)
+    """The expert's actions; with ``action_noise`` the environment executed perturbed copies of them."""
     frames: list[np.ndarray] = field(default_factory=list)
     frame_states: list[FrameState] = field(default_factory=list)
     """What each frame shows, to render it later (``record_frame_states``; one per frame, as ``frames``)."""
@@ -46,6 +48,7 @@ def run_expert_episode(
     frame_steps: Container[int] | None = None,
     on_step: Callable[[Episode], None] | None = None,
     record_frame_states: bool = False,
+    action_noise: ActionNoise | None = None,
 ) -> Episode:
     """Reset ``env`` to ``seed`` and let the expert act until success or the horizon.
 
@@ -58,9 +61,15 @@ def run_expert_episode(
     ``record_frame_states`` keeps, for every frame (the same steps as ``record_frames`` with
     ``record_final_frame``), what :meth:`MosaicTaskEnv.render_frame_states` needs to render it identically
     later: a pass that learns which frames it wants only at its end renders just those.
+    ``action_noise`` (DART, :mod:`mosaic_data.action_noise`): the environment executes each expert action with noise
+    drawn from a stream of ``seed`` on its pose, while ``episode.actions`` holds the expert's clean actions; the
+    expert's own commanded pose is left alone, so its next action corrects the perturbation. Zero noise is no noise.
     """
     env.reset_to_seed(seed)
     expert = make_expert(env, expert_variation)
+    if action_noise is not None and not action_noise.active:
+        action_noise = None
+    noise_rng = None if action_noise is None else action_noise.generator(seed)
     episode = Episode(env.task_name, env.robot_key, env.variation_index, seed, env.variation.description)
     for _ in range(env.horizon):
         if record_frames and (frame_steps is None or episode.length in frame_steps):
@@ -70,7 +79,7 @@ def run_expert_episode(
         episode.states.append(env.robot_state())
         action = expert.act()
         episode.actions.append(action)
-        env.step(action)
+        env.step(action if action_noise is None else action_noise.perturb(action, noise_rng))
         episode.length += 1
         episode.successes.append(env.check_success())
         episode.success = episode.successes[-1]

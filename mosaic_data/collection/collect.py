@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mosaic_data.action_noise import ActionNoise
 from mosaic_data.collection import CollectionError
 from mosaic_data.collection.merge import aggregate_into, check_replaceable, merge_datasets, remove_stale_work
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
@@ -63,6 +64,8 @@ class CollectRequest:
     """'local' (worker processes on this machine) or 'ray' (:mod:`.ray_executor`): the same datasets either way."""
     ray_address: str | None = None
     """The Ray cluster to use with ``executor='ray'``; None starts a local Ray."""
+    action_noise: ActionNoise | None = None
+    """DART-style noise on the executed actions (``--action-noise``; :mod:`mosaic_data.action_noise`); None: none."""
 
 
 @dataclass
@@ -133,6 +136,7 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
                 base_seed=request.seed,
                 image_height=request.image_height,
                 image_width=request.image_width,
+                action_noise=request.action_noise,
             )
             jobs.append(DatasetJob(settings, request.output_dir))
     return jobs
@@ -188,10 +192,20 @@ def _settings_difference(found: list[dict] | None, expected: list[dict]) -> str:
     if not found or len(found) != len(expected):
         return f"{len(found or [])} sources instead of {len(expected)}"
     for old, new in zip(found, expected):
-        for key, value in new.get("settings", {}).items():
-            if old.get("settings", {}).get(key) != value:
-                return f"{old.get('repo_id')}: {key} {old.get('settings', {}).get(key)} instead of {value}"
+        old_settings, new_settings = old.get("settings", {}), new.get("settings", {})
+        for key in list(new_settings) + [key for key in old_settings if key not in new_settings]:
+            if old_settings.get(key) != new_settings.get(key):
+                return f"{old.get('repo_id')}: {key} {_setting_text(key, old_settings.get(key))} instead of {_setting_text(key, new_settings.get(key))}"
     return "different sources"
+
+
+def _setting_text(key: str, value: Any) -> str:
+    """A setting as the difference names it: the noise as its two stds (or 'none'), not its whole record."""
+    if key == "action_noise":
+        if not isinstance(value, dict):
+            return "none"
+        return f"{value.get('position_std_m')} m,{value.get('rotation_std_rad')} rad"
+    return str(value)
 
 
 # ---------------------------------------------------------------------- collection

@@ -65,6 +65,19 @@ def dataset_description(sidecar: dict, repo_id: str, total_episodes: int | None 
         "and retries are in `meta/mosaic.json`, with the full variation tables and collection settings: "
         "`make_task_env(task, variation, robot).reset_to_seed(seed)` and the task's expert regenerate it.",
         "",
+    ]
+    noises = [source["settings"].get("action_noise") for source in sidecar["sources"]]
+    stds = sorted({f"{noise['position_std_m']} m, {noise['rotation_std_rad']} rad" for noise in noises if isinstance(noise, dict)})
+    if stds:
+        lines += [
+            f"Collected with DART-style noise injection (`--action-noise`, std {'; '.join(stds)}"
+            + ("" if all(isinstance(noise, dict) for noise in noises) else ", in some of its sources")
+            + "): the simulator executed each expert action with Gaussian noise on its target pose while `action` holds "
+            "the expert's clean action, so episodes show the expert correcting small perturbations (an episode's noise "
+            "follows from its seed: `action_noise` in the collection settings).",
+            "",
+        ]
+    lines += [
         f"Software: {software}.",
         "",
         "### Load it",

@@ -14,6 +14,9 @@ run the task's expert. Layout::
      "removed_episodes": [...],  # only after an edit: records of episodes no longer in the dataset
      "software": {...}, "created_utc": ...}
 
+A source's settings hold ``action_noise`` (the stds and how the noise was drawn) only when it was collected with
+``--action-noise`` (DART-style noise on the executed actions; ``action`` is then the expert's clean action).
+
 LeRobot's own tools (``lerobot-edit-dataset``: delete_episodes, split, ...) neither copy nor update the sidecar,
 and they renumber the episodes. :func:`read_aligned_sidecar` therefore matches each current LeRobot episode to
 its record by ``data_digest`` (a hash of the episode's actions, which LeRobot copies bit for bit), falling back

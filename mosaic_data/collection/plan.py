@@ -6,7 +6,8 @@ small finished LeRobot dataset of its own before it is merged, so that an interr
 shards that were in flight.
 
 Seeds: episode slot ``k`` of ``variation`` tries instance seeds ``episode_seed(base_seed, variation, k, a)``
-for attempts ``a = 0, 1, ...`` until the expert succeeds (see :func:`episode_seed`).
+for attempts ``a = 0, 1, ...`` until the expert succeeds (see :func:`episode_seed`). With ``action_noise``
+(``--action-noise``), each attempt's noise is drawn from that attempt's seed (:mod:`mosaic_data.action_noise`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from mosaic_data.action_noise import ActionNoise
 from mosaic_data.collection.schema import FPS, dataset_root, repo_id_for
 from mosaic_data.tasks.render_meshes import VISUAL_FACE_BUDGET
 
@@ -50,15 +52,30 @@ class CollectionSettings:
     episodes_per_shard: int = EPISODES_PER_SHARD
     fps: int = FPS
     seed_rule: str = SEED_RULE
+    action_noise: ActionNoise | None = None
+    """DART-style noise on the executed actions (the recorded ones are the expert's); None: none. Written to the
+    settings only when set, so that a dataset without noise has the settings it had before the option existed."""
+
+    def __post_init__(self) -> None:
+        if self.action_noise is not None and not self.action_noise.active:
+            object.__setattr__(self, "action_noise", None)  # zero noise is no noise: the same episodes
 
     def to_json(self) -> dict[str, Any]:
         content = asdict(self)
         content["variations"] = list(self.variations)
+        if self.action_noise is None:
+            del content["action_noise"]
+        else:
+            content["action_noise"] = self.action_noise.to_json()
         return content
 
     @classmethod
     def from_json(cls, content: dict[str, Any]) -> CollectionSettings:
-        return cls(**{**content, "variations": tuple(content["variations"])})
+        noise = content.get("action_noise")
+        return cls(**{
+            **content, "variations": tuple(content["variations"]),
+            "action_noise": None if noise is None else ActionNoise.from_json(noise),
+        })
 
 
 @dataclass(frozen=True)

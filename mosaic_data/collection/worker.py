@@ -108,7 +108,10 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
                 seed = episode_seed(settings.base_seed, spec.variation, slot, attempt)
                 started = time.perf_counter()
                 writer.seconds = 0.0
-                episode = run_expert_episode(env, seed, record_frames=True, record_final_frame=False, on_step=writer.add_step)
+                episode = run_expert_episode(
+                    env, seed, record_frames=True, record_final_frame=False, on_step=writer.add_step,
+                    action_noise=settings.action_noise,
+                )
                 write_s += writer.seconds
                 rollout_s += time.perf_counter() - started - writer.seconds
                 if episode.success:
