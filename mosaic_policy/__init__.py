@@ -8,7 +8,7 @@ One folder per policy, as LeRobot does (`configuration_X.py`, `modeling_X.py`, `
 - `mlp_osil/`: an MLP task context from stacked demo features (`--policy.type=mlp_osil`);
 - `daml/`: domain-adaptive meta-learning (`--policy.type=daml`).
 
-`common/` holds what they share: the ResNet trunk, attention, action head, augmentation, encodings, the
+`common/` holds what they share: the vision trunks, attention, action head, augmentation, encodings, the
 demo-conditioning layer (paired demonstrator frames and loss weights inside lerobot-train) and the policy
 interface (`set_demo`, `select_action`). Only the configurations load here; LeRobot's factory imports a
 policy's modeling module when it builds one.

@@ -8,6 +8,7 @@ adds its architecture's options.
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, get_args
 
 from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
@@ -17,6 +18,9 @@ from mosaic_data.constants import N_DEMO_FRAMES
 from .run_progress import RunProgressSchedulerConfig
 
 ACTION_SAMPLING = ("mode", "sample")
+VisionBackbone = Literal["resnet18", "conv"]
+VISION_BACKBONES: tuple[str, ...] = get_args(VisionBackbone)
+"""Trunks `vision_backbone` can name (mosaic_policy.common.trunks.make_trunk builds them)."""
 
 
 @dataclass
@@ -45,6 +49,9 @@ class DemoConditionedConfig(PreTrainedConfig):
         - action_chunk: Consecutive 20 Hz targets predicted per query, executed in order.
         - eval_obs_frames: Observation frames per inference step (1: the current frame; policies with a memory
             of past frames keep their own).
+        - vision_backbone: Per-frame vision trunk: "resnet18" (the paper's ResNet-18 to layer3, 2.8 M parameters)
+            or "conv" (four strided 3x3 convolutions, 0.39 M parameters, for training on CPU); both give
+            256 x H/16 x W/16 features, so the rest of every policy is the same.
         - embed_dim: Size of the per-frame embedding fed to the heads.
         - head_hidden_dim: Hidden width of the action / inverse-dynamics MLPs.
         - use_state: Concatenate the normalised robot state to the embedding in the action head (off in the paper).
@@ -87,6 +94,8 @@ class DemoConditionedConfig(PreTrainedConfig):
         }
     )
 
+    # Vision trunk: "resnet18" (the paper's, 2.8M params) or "conv" (4 strided convs, 0.39M params, for CPU training); same 256 x H/16 x W/16 features.
+    vision_backbone: VisionBackbone = "resnet18"
     # Per-frame embedding size fed to the action and inverse-dynamics heads.
     embed_dim: int = 256
     # Hidden width of the action / inverse-dynamics MLPs.
@@ -130,6 +139,11 @@ class DemoConditionedConfig(PreTrainedConfig):
             raise ValueError(
                 f"`action_sampling` must be one of {ACTION_SAMPLING}, got {self.action_sampling!r}: "
                 "pass e.g. --policy.action_sampling=mode."
+            )
+        if self.vision_backbone not in VISION_BACKBONES:
+            raise ValueError(
+                f"`vision_backbone` must be one of {VISION_BACKBONES}, got {self.vision_backbone!r}: "
+                "pass e.g. --policy.vision_backbone=conv."
             )
         if self.n_demo_frames < 2:
             raise ValueError(f"`n_demo_frames` must be >= 2 (first and last frame), got {self.n_demo_frames}.")

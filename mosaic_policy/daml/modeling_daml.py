@@ -1,11 +1,11 @@
 """DAML: the policy adapts its weights to the demonstration by gradient descent (Yu et al., RSS 2018).
 
-Per frame: ResNet-18 trunk (to layer3) -> spatial soft-argmax keypoints -> policy MLP (`n_policy_layers` hidden
-layers, then the embedding) -> the shared discretised logistic action head. The demonstrator is another robot,
-so its video has no actions to imitate: the inner step descends a *learned* temporal adaptation loss of the
-policy's own activations on the demo frames, and the outer loss (behaviour cloning on the agent's frames with
-the adapted weights) teaches that loss, the initial weights and the inner learning rates what a useful
-adaptation is.
+Per frame: ResNet-18 trunk (to layer3; `vision_backbone`) -> spatial soft-argmax keypoints -> policy MLP
+(`n_policy_layers` hidden layers, then the embedding) -> the shared discretised logistic action head. The
+demonstrator is another robot, so its video has no actions to imitate: the inner step descends a *learned*
+temporal adaptation loss of the policy's own activations on the demo frames, and the outer loss (behaviour
+cloning on the agent's frames with the adapted weights) teaches that loss, the initial weights and the inner
+learning rates what a useful adaptation is.
 
 What is adapted, and why:
 
@@ -42,7 +42,7 @@ from torch.func import functional_call, grad_and_value, vmap
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import EMBED_CHANNELS, trunk_features
-from ..common.resnet_trunk import ResNetTrunk
+from ..common.trunks import make_trunk
 from .configuration_daml import DamlConfig
 
 N_KEYPOINTS = EMBED_CHANNELS
@@ -111,7 +111,7 @@ class DamlModel(nn.Module):
 
     def __init__(self, config: DamlConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__()
-        self.trunk = ResNetTrunk()
+        self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
         self.keypoints = SpatialSoftArgmax(channels, h, w)

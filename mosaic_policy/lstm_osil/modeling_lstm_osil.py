@@ -1,9 +1,10 @@
 """LSTM baseline of the paper's Table I: MOSAIC with its attention module replaced by projectors and an LSTM.
 
-Per frame: ResNet-18 trunk (to layer3) -> linear projector (:class:`FrameEmbedding`, shared by demonstration and
-observation frames) -> an LSTM reads the demonstration frames, then the sample's observation frames in order ->
-its output at each observation frame, projected to `embed_dim` -> the shared action head (behaviour cloning) and
-the inverse-dynamics head. No contrastive module: the row isolates what attention adds.
+Per frame: ResNet-18 trunk (to layer3; `vision_backbone`) -> linear projector (:class:`FrameEmbedding`, shared
+by demonstration and observation frames) -> an LSTM reads the demonstration frames, then the sample's
+observation frames in order -> its output at each observation frame, projected to `embed_dim` -> the shared
+action head (behaviour cloning) and the inverse-dynamics head. No contrastive module: the row isolates what
+attention adds.
 
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy`. Acting, `set_demo` runs the
 LSTM over the demonstration once and caches its (h, c) state; every query embeds the current frame, keeps it in
@@ -19,7 +20,7 @@ from torch import Tensor, nn
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameEmbedding, trunk_features
-from ..common.resnet_trunk import ResNetTrunk
+from ..common.trunks import make_trunk
 from .configuration_lstm_osil import LstmOsilConfig
 
 LstmState = tuple[Tensor, Tensor]
@@ -32,7 +33,7 @@ class LstmOsilModel(nn.Module):
     def __init__(self, config: LstmOsilConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__()
         self.config = config
-        self.trunk = ResNetTrunk()
+        self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
         self.embed = FrameEmbedding(channels, h, w, config.embed_dim)

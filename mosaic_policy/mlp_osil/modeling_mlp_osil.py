@@ -1,10 +1,11 @@
 """MLP baseline of the paper's Table I: a task context vector from the stacked demonstration features.
 
-Per frame: ResNet-18 trunk (to layer3) -> linear projector (:class:`FrameEmbedding`, shared by demonstration and
-observation frames). The `n_demo_frames` demonstration vectors are concatenated and an MLP maps them to a
-`context_dim` task context; every observation frame's vector, concatenated with the context and projected to
-`embed_dim`, feeds the shared action head (behaviour cloning) and the inverse-dynamics head. No attention, no
-memory of past frames and no contrastive module: the row measures a plain conditioning of the same trunk.
+Per frame: ResNet-18 trunk (to layer3; `vision_backbone`) -> linear projector (:class:`FrameEmbedding`, shared
+by demonstration and observation frames). The `n_demo_frames` demonstration vectors are concatenated and an MLP
+maps them to a `context_dim` task context; every observation frame's vector, concatenated with the context and
+projected to `embed_dim`, feeds the shared action head (behaviour cloning) and the inverse-dynamics head. No
+attention, no memory of past frames and no contrastive module: the row measures a plain conditioning of the same
+trunk.
 
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy`; acting, `set_demo` computes
 the context once per episode.
@@ -16,7 +17,7 @@ from torch import Tensor, nn
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameEmbedding, trunk_features
-from ..common.resnet_trunk import ResNetTrunk
+from ..common.trunks import make_trunk
 from .configuration_mlp_osil import MlpOsilConfig
 
 
@@ -35,7 +36,7 @@ class MlpOsilModel(nn.Module):
     def __init__(self, config: MlpOsilConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__()
         self.config = config
-        self.trunk = ResNetTrunk()
+        self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
         self.embed = FrameEmbedding(channels, h, w, config.embed_dim)

@@ -1,10 +1,10 @@
 """MOSAIC: one-shot imitation conditioned on a demonstrator video, with self-attention and contrastive learning.
 
-Per frame: ResNet-18 trunk (to layer3) -> + sinusoidal spatio-temporal encoding -> non-local attention
-(demo frames self-attend; every observation frame attends to its own tokens and the demo tokens) -> per-frame
-embedding -> discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head predicts
-the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA target
-encoder shapes the representation before and/or after attention.
+Per frame: ResNet-18 trunk (to layer3; `vision_backbone`) -> + sinusoidal spatio-temporal encoding -> non-local
+attention (demo frames self-attend; every observation frame attends to its own tokens and the demo tokens) ->
+per-frame embedding -> discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head
+predicts the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA
+target encoder shapes the representation before and/or after attention.
 
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy` (the interface every
 demo-conditioned policy shares). Acting, the demo tokens and every layer's demo keys/values are computed once
@@ -20,8 +20,8 @@ from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head, masked_mean
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameEmbedding, FrameMemory, trunk_features
-from ..common.resnet_trunk import ResNetTrunk
 from ..common.run_progress import run_progress
+from ..common.trunks import make_trunk
 from .configuration_mosaic import MosaicConfig
 from .contrastive import TemporalContrastiveModule, ema_momentum, ema_update, make_target, positive_indices
 
@@ -35,7 +35,7 @@ class MosaicModel(nn.Module):
     def __init__(self, config: MosaicConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__()
         self.config = config
-        self.trunk = ResNetTrunk()
+        self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
         self.attention = NonLocalAttentionStack(

@@ -1,12 +1,12 @@
 """T-OSIL: the transformer baseline of the paper's Table I (Dasari & Gupta, CoRL 2020) on MOSAIC's components.
 
-Per frame: ResNet-18 trunk (to layer3) -> + sinusoidal spatio-temporal encoding (demo frames at times
-0..D-1, observation frames at D..D+T-1) -> non-local attention with the full pattern (demo frames self-attend;
-observation frame t attends to every demo token and to the tokens of observation frames 0..t, never a later
-one) -> per-frame embedding -> discretised logistic mixture over actions (behaviour cloning). Auxiliary losses:
-inverse dynamics between consecutive embeddings, and point prediction (a spatial soft-argmax over each frame's
-attended feature map regresses the gripper target `point_horizon` frames ahead; see :class:`TosilConfig`).
-No contrastive module.
+Per frame: ResNet-18 trunk (to layer3; `vision_backbone`) -> + sinusoidal spatio-temporal encoding (demo frames
+at times 0..D-1, observation frames at D..D+T-1) -> non-local attention with the full pattern (demo frames
+self-attend; observation frame t attends to every demo token and to the tokens of observation frames 0..t, never
+a later one) -> per-frame embedding -> discretised logistic mixture over actions (behaviour cloning). Auxiliary
+losses: inverse dynamics between consecutive embeddings, and point prediction (a spatial soft-argmax over each
+frame's attended feature map regresses the gripper target `point_horizon` frames ahead; see
+:class:`TosilConfig`). No contrastive module.
 
 Acting follows :mod:`mosaic_policy.common.demo_conditioned_policy`: `set_demo` caches every layer's demo
 keys/values once per episode; each query pushes the current frame's trunk features into a memory of the last
@@ -26,7 +26,7 @@ from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head, masked_mean
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameEmbedding, FrameMemory, trunk_features
-from ..common.resnet_trunk import ResNetTrunk
+from ..common.trunks import make_trunk
 from .configuration_tosil import TosilConfig
 
 N_KEYPOINTS = 32
@@ -100,7 +100,7 @@ class TosilModel(nn.Module):
     def __init__(self, config: TosilConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__()
         self.config = config
-        self.trunk = ResNetTrunk()
+        self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
         self.attention = NonLocalAttentionStack(

@@ -1,6 +1,8 @@
-"""Benchmark: MOSAIC training step (paper settings) and attention cost against full spatio-temporal attention.
+"""Benchmark: MOSAIC training step (paper settings) and attention cost against full spatio-temporal attention;
+or the two vision trunks against each other (`--compare-trunks`).
 
     python -m pipelines.bench.policy_train_step [--batch-size 30] [--steps 3] [--threads N]
+    python -m pipelines.bench.policy_train_step --compare-trunks [--rounds 3] [--threads 2]
 
 Prints: seconds per training step (forward + backward + Adam + EMA update; batch 30, 4 demo + 7 observation
 frames at 100x180, 2 attention layers, contrastive before and after attention), peak resident memory, and the
@@ -10,9 +12,21 @@ attention maps (`return_weights=True`, what recording an episode uses), and the 
 (T-OSIL style: observation frames attend causally to all observation frames besides the demo), with the ratios
 MOSAIC/full and fused/explicit. The three are timed in interleaved rounds so that load from other processes
 falls on all of them alike.
+
+`--compare-trunks`: a full MOSAIC training step (the same, with its default 7 observation + 4 demo frames) at
+the `cpu` preset's sizes (batch 16, 48x88 unless given) with `--policy.vision_backbone=resnet18` and with
+`conv`, in alternating rounds (one warm-up round first); prints each one's parameters, median ms per step, the
+ratio, and where a step's time goes, each part timed alone on the step's sizes: the online trunk's forward +
+backward and the EMA target trunk's forward (batch x 11 frames), the online attention stack's forward + backward
+and the target attention's forward, the four augmentation calls (two views of demo and observation frames), and
+the rest (embeddings, heads, losses, contrastive modules, Adam, EMA update) as the step minus those (timed apart,
+so an estimate). Each figure in wall time and in this process's CPU time; with `--threads 1` the CPU time is
+what load from other processes leaves alone (on a busy 2-core machine, 2 threads wait on each other in every
+small operation and the augmentations' many small ones can take seconds).
 """
 
 import argparse
+import contextlib
 import resource
 import statistics
 import time
@@ -56,6 +70,15 @@ def peak_rss_gib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
+def train_step(policy, optimizer, batch: dict) -> None:
+    """One lerobot-train update: forward, backward, Adam, then the policy's post-step update (the EMA target)."""
+    loss, _ = policy.forward(batch)
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    policy.update()
+
+
 def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> list[float]:
     from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
@@ -66,13 +89,98 @@ def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> li
     times = []
     for _ in range(steps + 1):  # the first step warms up oneDNN
         start = time.perf_counter()
-        loss, _ = policy.forward(batch)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        policy.update()
+        train_step(policy, optimizer, batch)
         times.append(time.perf_counter() - start)
     return times[1:]
+
+
+TRUNK_PARTS = ("step", "trunk fwd+bwd", "target trunk fwd", "attention fwd+bwd", "target attention fwd", "augmentation")
+
+
+def compare_trunks(batch_size: int, height: int, width: int, rounds: int) -> dict[str, dict]:
+    """Per vision backbone: parameters of its trunk and median seconds of a full MOSAIC training step and of its
+    parts (TRUNK_PARTS), timed in alternating rounds after one warm-up round."""
+    from mosaic_policy.common.configuration_demo import VISION_BACKBONES
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
+
+    runs = {}
+    for backbone in VISION_BACKBONES:
+        torch.manual_seed(0)
+        config = paper_config(height, width, vision_backbone=backbone)
+        policy = MosaicPolicy(config).train()
+        runs[backbone] = (policy, torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr))
+    batch = synthetic_batch(config, batch_size, height, width)
+    d, t = config.n_demo_frames, config.train_obs_frames
+    frames = torch.rand(batch_size * (d + t), 3, height, width)
+    c, h, w = runs["conv"][0].model.feature_shape
+    demo_features = torch.randn(batch_size, c, d, h, w, requires_grad=True)
+    obs_features = torch.randn(batch_size, c, t, h, w, requires_grad=True)
+    times = {backbone: {part: [] for part in TRUNK_PARTS} for backbone in runs}  # (wall s, CPU s) per round
+    for round_ in range(rounds + 1):  # the first round warms up oneDNN
+        for backbone, (policy, optimizer) in runs.items():
+            took = {}
+            with _timed(took, "step"):
+                train_step(policy, optimizer, batch)
+            with _timed(took, "trunk fwd+bwd"):
+                policy.model.trunk(frames).sum().backward()
+            policy.model.trunk.zero_grad(set_to_none=True)
+            with _timed(took, "target trunk fwd"), torch.no_grad():
+                policy.target_trunk(frames)
+            with _timed(took, "attention fwd+bwd"):
+                demo_out, obs_out, _ = policy.model.attention(demo_features, obs_features, False)
+                (demo_out.sum() + obs_out.sum()).backward()
+            policy.model.attention.zero_grad(set_to_none=True)
+            demo_features.grad = obs_features.grad = None
+            with _timed(took, "target attention fwd"), torch.no_grad():
+                policy.target_attention(demo_features, obs_features, False)
+            with _timed(took, "augmentation"):
+                for _ in range(2):  # view 1 (the online branch) and view 2 (the target branch)
+                    policy.augment(batch[DEMO_FRAMES_KEY]), policy.augment(batch[CAMERA_KEY])
+            if round_:
+                for part, seconds in took.items():
+                    times[backbone][part].append(seconds)
+    return {
+        backbone: {
+            "params": sum(p.numel() for p in policy.model.trunk.parameters()),
+            "policy_params": sum(p.numel() for p in policy.parameters()),
+            **{part: statistics.median(s[0] for s in seconds) for part, seconds in times[backbone].items()},
+            **{f"{part} cpu": statistics.median(s[1] for s in seconds) for part, seconds in times[backbone].items()},
+        }
+        for backbone, (policy, _) in runs.items()
+    }
+
+
+@contextlib.contextmanager
+def _timed(took: dict, part: str):
+    """Store (wall seconds, this process's CPU seconds) of the block under took[part]."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    yield
+    took[part] = (time.perf_counter() - wall, time.process_time() - cpu)
+
+
+def print_trunk_comparison(results: dict[str, dict], batch_size: int, height: int, width: int, rounds: int) -> None:
+    print(
+        f"MOSAIC training step, batch {batch_size}, 4 demo + 7 observation frames at {height}x{width}, contrastive "
+        f"both, {torch.get_num_threads()} threads (median of {rounds} alternating rounds; wall time, and this "
+        f"process's CPU time, which load from other processes does not inflate):"
+    )
+    for backbone, r in results.items():
+        print(
+            f"  {backbone:<8}: {r['step'] * 1e3:.0f} ms/step wall, {r['step cpu'] * 1e3:.0f} ms CPU; trunk "
+            f"{r['params'] / 1e6:.2f} M params (policy {r['policy_params'] / 1e6:.2f} M)"
+        )
+        for clock, suffix in (("wall", ""), ("CPU", " cpu")):
+            step = r[f"step{suffix}"]
+            rest = step - sum(r[part + suffix] for part in TRUNK_PARTS[1:])
+            parts = [(part, r[part + suffix]) for part in TRUNK_PARTS[1:]] + [("rest", rest)]
+            print(f"    {clock:<4} " + ", ".join(f"{part} {s * 1e3:.0f} ms ({s / step:.0%})" for part, s in parts))
+    old, new = results["resnet18"], results["conv"]
+    print(
+        f"  conv vs resnet18: {old['step'] / new['step']:.2f}x faster per step (wall), "
+        f"{old['step cpu'] / new['step cpu']:.2f}x (CPU); trunk fwd+bwd {old['trunk fwd+bwd'] / new['trunk fwd+bwd']:.1f}x"
+        f" (wall), target trunk fwd {old['target trunk fwd'] / new['target trunk fwd']:.1f}x (wall); trunk parameters "
+        f"{old['params'] / new['params']:.1f}x fewer"
+    )
 
 
 def time_attention(batch_size: int, feature_shape: tuple[int, int, int], repeats: int) -> dict[str, float]:
@@ -105,18 +213,30 @@ def time_attention(batch_size: int, feature_shape: tuple[int, int, int], repeats
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--batch-size", type=int, default=30)
+    parser.add_argument("--batch-size", type=int, default=None, help="default 30 (16 with --compare-trunks)")
     parser.add_argument("--steps", type=int, default=3, help="timed steps after one warm-up step")
-    parser.add_argument("--height", type=int, default=100)
-    parser.add_argument("--width", type=int, default=180)
+    parser.add_argument("--height", type=int, default=None, help="default 100 (48 with --compare-trunks)")
+    parser.add_argument("--width", type=int, default=None, help="default 180 (88 with --compare-trunks)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     parser.add_argument("--attention-repeats", type=int, default=3, help="timed rounds of the attention comparison")
     parser.add_argument("--skip-train", action="store_true", help="only the attention comparison")
+    parser.add_argument("--compare-trunks", action="store_true",
+                        help="time a training step with each vision backbone (resnet18, conv) instead")
+    parser.add_argument("--rounds", type=int, default=3, help="timed alternating rounds of --compare-trunks")
     args = parser.parse_args()
+    sizes = (16, 48, 88) if args.compare_trunks else (30, 100, 180)
+    for name, default in zip(("batch_size", "height", "width"), sizes, strict=True):
+        if getattr(args, name) is None:
+            setattr(args, name, default)
     if args.threads:
         torch.set_num_threads(args.threads)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device for this run: cpu (cuda available: {device == 'cuda'})")
+    if args.compare_trunks:
+        results = compare_trunks(args.batch_size, args.height, args.width, args.rounds)
+        print_trunk_comparison(results, args.batch_size, args.height, args.width, args.rounds)
+        print(f"peak resident memory: {peak_rss_gib():.2f} GiB")
+        return
 
     from mosaic_policy.common.resnet_trunk import ResNetTrunk
 

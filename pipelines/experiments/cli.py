@@ -33,10 +33,12 @@ ASSUMED_GPU_SECONDS_PER_STEP = 0.3
 MEASURED_ROLLOUT_STEPS_PER_S = 13.5
 """Control steps per second per evaluation worker with MOSAIC at 100x180, measured on this project's 2-core
 machine (README, speed section): the rollout part of the estimate."""
-MEASURED_CPU_SECONDS_PER_STEP = 2.5
-"""Seconds per MOSAIC training step on this project's 2-core machine at 48x88, batch 16, 7 frames (lerobot-train's
-``updt_s``, the ``cpu`` preset's sizes): the training part of the estimate on ``--policy.device=cpu``, scaled by
-batch size and pixels per image."""
+MEASURED_CPU_SECONDS_PER_STEP = {"resnet18": 2.5, "conv": 0.85}
+"""Seconds per MOSAIC training step on this project's 2-core machine at 48x88, batch 16, 7 frames (the ``cpu``
+preset's sizes), per ``--policy.vision_backbone``: resnet18 from lerobot-train's ``updt_s``; conv is that figure
+over the 3x (2.9-3.2x in three runs) that ``python -m pipelines.bench.policy_train_step --compare-trunks``
+measures between the two trunks in one run. The training part of the estimate on ``--policy.device=cpu``, scaled
+by batch size and pixels per image."""
 CPU_REFERENCE_SIZES = (16, 48, 88)
 """Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""
 
@@ -94,9 +96,11 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
     if preset.device == "cpu":
         height, width = parse_image_size(preset.image_size)
         batch, ref_height, ref_width = CPU_REFERENCE_SIZES
-        per_step = MEASURED_CPU_SECONDS_PER_STEP * preset.batch_size * height * width / (batch * ref_height * ref_width)
+        measured = MEASURED_CPU_SECONDS_PER_STEP[preset.vision_backbone]
+        per_step = measured * preset.batch_size * height * width / (batch * ref_height * ref_width)
         text += (f"; training about {_duration(steps * per_step)} on 2 CPU cores ({per_step:.2g} s per step, scaled "
-                 f"from {MEASURED_CPU_SECONDS_PER_STEP} s measured for MOSAIC at {ref_height}x{ref_width}, batch {batch})")
+                 f"from {measured} s measured for MOSAIC with the {preset.vision_backbone} trunk at "
+                 f"{ref_height}x{ref_width}, batch {batch})")
     if preset.device == "cuda":
         text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
                  f"{ASSUMED_GPU_SECONDS_PER_STEP} s per step (not measured here)")

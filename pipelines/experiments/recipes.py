@@ -7,7 +7,7 @@ Each recipe turns (preset, tasks, seeds, output folder) into the same list of st
 - ``multi-task``: one model per method on all tasks (merged datasets, 3 attention layers, balanced loss),
   evaluated per task (Table I, "multi" rows);
 - ``novel-task``: per held-out task, a model trained on the other tasks, evaluated one-shot on the held-out one
-  (Table II, "No Training");
+  (Table II, "Novel-task");
 - ``fine-tune``: those models fine-tuned on the held-out task with a fraction of its data, against training from
   scratch on the same fraction; every saved checkpoint is evaluated (the fine-tuning figure, Table II "Fine-tune");
 - ``ablations``: MOSAIC with one option changed at a time (the appendix tables and this project's own options).
@@ -146,7 +146,9 @@ class PlanBuilder:
         p = self.preset
         steps, save_every = steps or p.steps, save_every or p.save_every
         train_dir = self.output_dir / "runs" / run / "train"
-        source = (f"--policy.path={init_from}",) if init_from else (f"--policy.type={method}",)
+        # A fine-tuned model keeps its checkpoint's trunk (config.json); a new one gets the preset's.
+        source = ((f"--policy.path={init_from}",) if init_from
+                  else (f"--policy.type={method}", f"--policy.vision_backbone={p.vision_backbone}"))
         selection = (f"--dataset.episodes=[{','.join(map(str, episodes))}]",) if episodes is not None else ()
         self.plan.add(Stage(
             key=f"train/{run}", kind="train", output=train_dir,
@@ -271,7 +273,7 @@ def fine_tune(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
         for method in p.fine_tune_methods:
             for seed in _seeds(p):
                 novel, novel_dir = _novel_run(b, held_out, method, seed)
-                # where fine-tuning starts: the novel-task model on the held-out task (Table II, No Training)
+                # where fine-tuning starts: the novel-task model on the held-out task (Table II, Novel-task)
                 b.evaluate("novel-task", method, novel, novel_dir, (held_out,), seed)
                 last = novel_dir / "checkpoints" / f"{p.steps:0{max(6, len(str(p.steps)))}d}" / "pretrained_model"
                 for fraction in p.fine_tune_fractions:
@@ -301,7 +303,7 @@ def ablations(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
 RECIPES = {
     "single-task": (single_task, "single_task_tasks", "Table I, single-task rows: each method trained and evaluated per task"),
     "multi-task": (multi_task, "multi_task_tasks", "Table I, multi-task rows: one model per method on all tasks"),
-    "novel-task": (novel_task, "novel_task_tasks", "Table II, No Training: trained on the other tasks, one-shot on a new one"),
+    "novel-task": (novel_task, "novel_task_tasks", "Table II, Novel-task: trained on the other tasks, one-shot on a new one"),
     "fine-tune": (fine_tune, "fine_tune_tasks", "Table II, Fine-tune, and the fine-tuning figure: novel-task models fine-tuned on 25-100% of the new task's data vs training from scratch"),
     "ablations": (ablations, "ablation_tasks", "Appendix: contrastive placement, positive, BYOL, attention pattern, state input, action chunking, time scale"),
 }

@@ -73,6 +73,19 @@ def test_fine_tune_fractions_select_the_first_episodes_of_every_variation(tmp_pa
     assert selection == next(a for a in scratch.command if a.startswith("--dataset.episodes="))
 
 
+@pytest.mark.parametrize("preset_name, backbone", [("paper", "resnet18"), ("cpu", "conv"), ("smoke", "conv")])
+def test_every_new_model_gets_the_presets_vision_backbone_and_a_fine_tuned_one_keeps_its_own(preset_name, backbone, tmp_path):
+    plan = build_plan("fine-tune", PRESETS[preset_name], tmp_path, tasks=("door",))
+    trains = [s for s in plan.stages if s.kind == "train"]
+    new = [s for s in trains if any(a.startswith("--policy.type=") for a in s.command)]
+    fine = [s for s in trains if any(a.startswith("--policy.path=") for a in s.command)]
+    assert new and fine
+    assert all(f"--policy.vision_backbone={backbone}" in s.command for s in new)
+    assert not any(a.startswith("--policy.vision_backbone=") for s in fine for a in s.command)
+    with pytest.raises(ExperimentError, match="vision_backbone='vit': choose resnet18 or conv"):
+        resolve_preset(preset_name, ["vision_backbone=vit"])
+
+
 def test_dry_run_prints_the_commands_and_writes_nothing(tmp_path, capsys):
     output = tmp_path / "exp"
     assert cli.main(["run", "single-task", "--preset", "smoke", "--output", str(output), "--dry-run"]) == 0
@@ -89,8 +102,12 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
-    # 5 methods x 2700 steps at the 2.5 s per step measured for the cpu preset's own sizes: 9.4 hours
+    # 5 methods x 2700 steps at the 0.85 s per step of the conv trunk at the cpu preset's own sizes: 3.2 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
+    assert "training about 3.2 hours on 2 CPU cores (0.85 s per step" in capsys.readouterr().out
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, 9.4 hours
+    cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
+              "--set", "vision_backbone=resnet18"])
     assert "training about 9.4 hours on 2 CPU cores (2.5 s per step" in capsys.readouterr().out
 
 

@@ -41,6 +41,7 @@ def test_lerobot_train_help_shows_each_baselines_options(policy_type, tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     assert option in result.stdout and text in result.stdout
     assert "--policy.demo_repo_id" in result.stdout  # the shared demo-conditioning options
+    assert "--policy.vision_backbone" in result.stdout and "4 strided convs" in result.stdout
 
 
 @pytest.mark.parametrize("policy_type", POLICY_TYPES)
@@ -209,6 +210,47 @@ def test_gradients_reach_every_trainable_parameter_and_lerobots_factory_finds_th
     loss.backward()
     missing = [name for name, p in policy.named_parameters() if p.requires_grad and (p.grad is None or not p.grad.abs().sum() > 0)]
     assert not missing
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_every_policy_trains_acts_and_round_trips_with_the_conv_trunk(policy_type, tmp_path):
+    """`vision_backbone="conv"` builds the small trunk in every type: a training step reaches every trainable
+    parameter, the saved config.json keeps the choice, and the loaded policy acts exactly as the saved one (with
+    its BatchNorm-folded inference copy of the trunk)."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from mosaic_policy import policy_class
+    from mosaic_policy.common.conv_trunk import ConvTrunk
+
+    torch.manual_seed(0)
+    config = small_config(policy_type=policy_type, vision_backbone="conv")
+    policy = policy_class(policy_type)(config).train()
+    assert isinstance(policy.model.trunk, ConvTrunk) and policy.model.feature_shape == (256, 2, 4)
+    assert all(isinstance(m, ConvTrunk) for name, m in policy.named_children() if name == "target_trunk")
+    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
+    loss, _ = policy.forward(random_batch(config, seed=1))
+    optimizer.zero_grad()
+    loss.backward()
+    missing = [name for name, p in policy.named_parameters() if p.requires_grad and (p.grad is None or not p.grad.abs().sum() > 0)]
+    assert torch.isfinite(loss) and not missing
+    optimizer.step()
+    policy.update()
+
+    policy.eval().save_pretrained(tmp_path / "ckpt")
+    assert PreTrainedConfig.from_pretrained(tmp_path / "ckpt").vision_backbone == "conv"
+    loaded = policy_class(policy_type).from_pretrained(tmp_path / "ckpt").eval()
+    assert loaded.config.vision_backbone == "conv" and isinstance(loaded.model.trunk, ConvTrunk)
+    original, reloaded = policy.state_dict(), loaded.state_dict()
+    assert original.keys() == reloaded.keys() and all(torch.equal(original[k], reloaded[k]) for k in original)
+    demo = torch.randint(0, 255, (12, HEIGHT, 56, 3), dtype=torch.uint8)
+    frame = {IMAGE_KEY: torch.rand(2, 3, HEIGHT, 56), "observation.state": torch.randn(2, 10)}
+    chunks = []
+    for model in (policy, loaded):
+        model.reset()
+        model.set_demo(demo)
+        assert isinstance(model.trunk_for_inference(), ConvTrunk) and model.trunk_for_inference() is not model.model.trunk
+        chunks.append(model.predict_action_chunk(frame))
+    torch.testing.assert_close(chunks[0], chunks[1])
 
 
 def test_the_comparison_benchmark_prints_every_policy_as_a_ratio_to_mosaic(tmp_path, capsys):

@@ -15,7 +15,9 @@ from mosaic_policy.mosaic.contrastive import (
     positive_indices,
 )
 from mosaic_policy.common.discretized_logistic import DiscretizedLogisticMixture
+from mosaic_policy.common.conv_trunk import ConvTrunk
 from mosaic_policy.common.resnet_trunk import ResNetTrunk
+from mosaic_policy.common.trunks import make_trunk
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
 
@@ -25,6 +27,37 @@ def test_trunk_gives_256x7x12_features_at_100x180():
         features = trunk(torch.rand(1, 3, 100, 180))
     assert features.shape == (1, 256, 7, 12)
     assert features.dtype == torch.float32
+
+
+@pytest.mark.parametrize("height, width", [(32, 56), (48, 88), (100, 180), (33, 57)])
+def test_conv_trunk_gives_the_resnet_trunks_feature_shape(height, width):
+    """`vision_backbone="conv"` changes nothing downstream: same channels, same h x w for any image size."""
+    resnet, conv = ResNetTrunk().eval(), ConvTrunk().eval()
+    with torch.no_grad():
+        expected = resnet(torch.rand(2, 3, height, width)).shape
+        features = conv(torch.rand(2, 3, height, width))
+    assert features.shape == expected
+    assert conv.feature_shape(height, width) == resnet.feature_shape(height, width) == tuple(expected[1:])
+    assert conv.out_channels == resnet.out_channels == expected[1]
+    assert sum(p.numel() for p in conv.parameters()) < sum(p.numel() for p in resnet.parameters()) / 5
+
+
+@pytest.mark.parametrize("backbone, trunk_class", [("resnet18", ResNetTrunk), ("conv", ConvTrunk)])
+def test_every_backbone_builds_through_make_trunk_and_its_fused_copy_matches_the_eval_trunk(backbone, trunk_class):
+    torch.manual_seed(0)
+    trunk = make_trunk(small_config(vision_backbone=backbone))
+    assert type(trunk) is trunk_class
+    trunk.train()
+    with torch.no_grad():
+        for _ in range(3):  # BatchNorm running statistics away from their initial 0 / 1
+            trunk(torch.rand(4, 3, 32, 56) * 0.5 + 0.3)
+    trunk.eval()
+    fused = trunk.fused_for_inference()
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fused.modules())
+    assert not any(p.requires_grad for p in fused.parameters())
+    images = torch.rand(3, 3, 32, 56)
+    with torch.no_grad():
+        torch.testing.assert_close(fused(images), trunk(images), atol=1e-4, rtol=1e-4)
 
 
 # -- discretised logistic ----------------------------------------------------------------------------------

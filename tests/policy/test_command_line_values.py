@@ -18,3 +18,18 @@ def test_every_ablation_option_reaches_the_config(variant):
         name, value = option.removeprefix("--policy.").split("=")
         expected = {"true": True, "false": False}.get(value, int(value) if value.isdigit() else value)
         assert getattr(config, name) == expected
+
+
+@pytest.mark.parametrize("backbone", ["resnet18", "conv"])
+def test_vision_backbone_reaches_the_config(backbone):
+    config = draccus.parse(config_class=MosaicConfig, args=[f"--vision_backbone={backbone}"])
+    assert config.vision_backbone == backbone
+
+
+def test_a_bad_vision_backbone_on_the_command_line_is_one_line_naming_the_choices(capsys):
+    """A Literal field: the parser itself refuses the value (a failing __post_init__ would only tell lerobot-train's
+    user "Couldn't instantiate class MosaicConfig")."""
+    with pytest.raises(SystemExit):
+        draccus.parse(config_class=MosaicConfig, args=["--vision_backbone=resnet50"])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--vision_backbone: invalid choice: 'resnet50' (choose from 'resnet18', 'conv')" in error

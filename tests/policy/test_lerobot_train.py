@@ -95,6 +95,7 @@ def test_lerobot_train_help_lists_mosaic_options(tmp_path):
     assert result.returncode == 0
     assert "--policy.demo_repo_id" in result.stdout
     assert "Softmax temperature dividing query-key dot products" in result.stdout
+    assert "--policy.vision_backbone" in result.stdout and "4 strided convs" in result.stdout
 
 
 def test_lerobot_train_without_demo_dataset_fails_clearly(door_datasets, tmp_path):

@@ -24,14 +24,24 @@ def test_paper_defaults():
     assert config.observation_delta_indices == [0, 5, 10, 15, 20, 25, 30]
     assert config.action_delta_indices == list(range(35)) and config.action_chunk == 5
     assert config.use_state is False
+    assert config.vision_backbone == "resnet18"
 
 
 @pytest.mark.parametrize(
-    "field, value", [("contrastive", "sometimes"), ("contrastive_positive", "nearby"), ("n_demo_frames", 1)]
+    "field, value",
+    [("contrastive", "sometimes"), ("contrastive_positive", "nearby"), ("n_demo_frames", 1), ("vision_backbone", "resnet50")],
 )
 def test_config_rejects_bad_values_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         MosaicConfig(**{field: value})
+
+
+def test_a_bad_vision_backbone_is_a_one_line_error_naming_the_choices():
+    with pytest.raises(ValueError) as error:
+        MosaicConfig(vision_backbone="resnet50")
+    message = str(error.value)
+    assert "\n" not in message and "'resnet50'" in message
+    assert "resnet18" in message and "conv" in message and "--policy.vision_backbone=" in message
 
 
 def test_shapes_and_dtypes_through_the_model(policy):
