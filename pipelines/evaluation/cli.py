@@ -7,9 +7,10 @@
 For every episode: a fresh demonstration of the variation by the demonstrator's (Sawyer's) expert on another
 instance (or one drawn from ``--demo-dataset``), a fresh Panda instance, the policy's rollout up to the task's
 horizon, success from the environment, and which variation's goal the agent reached. Prints success per
-variation and per task (mean +- std) and the share of episodes that did the wrong variation, writes JSON and
-Markdown (with a confusion matrix per task) and a heat map PNG per task, optionally a rerun recording with the
-policy's attention.
+variation and per task (mean +- std, with the 95% Wilson interval of the rate and the episodes behind it: on
+10 episodes the interval reaches up to 30 points from the rate) and the share of episodes that did the wrong
+variation, writes JSON and Markdown (with a confusion matrix per task) and a heat map PNG per task, optionally
+a rerun recording with the policy's attention.
 
 Exit status: 0 when the evaluation ran, 2 on bad input (one line naming the fix), 1 when a rollout worker died
 (e.g. killed by the out-of-memory killer), 130 when interrupted. Every output path is checked before any work,

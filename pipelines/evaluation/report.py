@@ -1,11 +1,16 @@
-"""Success tables of an evaluation, as the paper reports them: per variation and per task, mean +- std.
+"""Success tables of an evaluation, as the paper reports them: per variation and per task, mean +- std, and how
+far the measured rate may be from the true one.
 
 An *agent* is one row family: a set of checkpoints (e.g. the same recipe trained with several seeds), the
 scripted expert, or the untrained policy. For each agent and variation the success rate is the mean over its
 episodes; the "+-" is the standard deviation over episodes (of the 0/1 outcomes) and, when the agent has
 several checkpoints, also over the checkpoints' own success rates. A task's rate is the mean over all its
-episodes (every variation has the same number), with the same two deviations. Each task row also carries its
-confusion matrix (which variation the agent did, :mod:`.confusion`).
+episodes (every variation has the same number), with the same two deviations. Every cell also carries its
+episodes, successes and distinct episodes (``instances``: an agent's checkpoints replay the same ones) and the
+95% Wilson score interval of its rate on those instances (:mod:`.intervals`), shown as ``[low, high] (n=...)``:
+how well the rate is known (on 10 episodes, up to 30 points either way), where the std of the 0/1 outcomes
+gives the spread of single episodes. Each task row also carries its confusion matrix (which variation the agent
+did, :mod:`.confusion`).
 """
 
 from __future__ import annotations
@@ -24,12 +29,15 @@ from mosaic_data.recording_files import check_folder_takes_file
 
 from .options import EvaluationError
 from .confusion import confusion_markdown, confusion_matrix, wrong_variation_text
+from .intervals import interval_text, rate_interval
 from .rollouts import EpisodeResult
 
 
 @dataclass
 class Cell:
-    """Success of one agent on one group of episodes (a variation, a task, or everything)."""
+    """Success of one agent on one group of episodes (a variation, a task, or everything). ``instances``: the
+    distinct episodes among them (its checkpoints replay the same ones); ``ci95_low`` and ``ci95_high`` bound
+    the 95% Wilson interval of ``mean`` measured on that many."""
 
     episodes: int
     successes: int
@@ -37,6 +45,9 @@ class Cell:
     std_episodes: float
     std_checkpoints: float | None
     per_checkpoint: list[float]
+    instances: int
+    ci95_low: float
+    ci95_high: float
 
 
 def _cell(results: list[EpisodeResult], checkpoints: dict[int, str]) -> Cell:
@@ -45,13 +56,19 @@ def _cell(results: list[EpisodeResult], checkpoints: dict[int, str]) -> Cell:
     for result in results:
         by_checkpoint[result.agent_index].append(result.success)
     per_checkpoint = [float(np.mean(by_checkpoint[index])) for index in checkpoints if index in by_checkpoint]
+    mean = float(outcomes.mean())
+    instances = len({(r.task, r.variation, r.episode) for r in results})
+    low, high = rate_interval(mean, instances)  # never None: summarize makes no cell without episodes
     return Cell(
         episodes=len(results),
         successes=int(outcomes.sum()),
-        mean=float(outcomes.mean()),
+        mean=mean,
         std_episodes=float(outcomes.std()),
         std_checkpoints=float(np.std(per_checkpoint)) if len(per_checkpoint) > 1 else None,
         per_checkpoint=per_checkpoint,
+        instances=instances,
+        ci95_low=low,
+        ci95_high=high,
     )
 
 
@@ -112,10 +129,14 @@ def _rows(tables: dict[str, Any], level: str) -> dict[tuple, dict[str, dict[str,
 
 
 def markdown(tables: dict[str, Any], settings: dict[str, Any], partial: dict[str, Any] | None = None) -> str:
-    """One table per task level: rows = variations (then tasks), columns = agents, cells = success %."""
+    """One table per task level: rows = variations (then tasks), columns = agents, cells = success % with its 95%
+    interval and episodes."""
     agents = list(tables)
     header = "| | " + " | ".join(agents) + " |\n|---|" + "---|" * len(agents) + "\n"
-    lines = [f"# mosaic-eval: one-shot success (%), mean +- std ({settings['episodes_per_variation']} episodes per variation)\n"]
+    lines = [
+        "# mosaic-eval: one-shot success (%), mean +- std [95% interval] (n distinct episodes) "
+        f"({settings['episodes_per_variation']} episodes per variation)\n"
+    ]
     if partial is not None:
         lines.append(
             f"\n**Partial results: {partial['finished']} of {partial['planned']} episodes finished** "
@@ -132,6 +153,9 @@ def markdown(tables: dict[str, Any], settings: dict[str, Any], partial: dict[str
         lines.append(f"| {task} {variation}: {description} | " + " | ".join(_cell_text(cells[a]) for a in agents) + " |\n")
     lines.append(
         "\n+- is the standard deviation over checkpoints when an agent has several, else over episodes. "
+        "[low, high] is the 95% Wilson score interval of the success rate on the cell's n distinct episodes (an "
+        "agent's checkpoints replay the same ones): where two agents' intervals overlap, more episodes may be "
+        "needed to rank them. "
         f"Seeds: base {settings['seed']}; demonstrations: {settings['demo_source']}.\n"
     )
     lines.append(confusion_markdown(tables))
@@ -139,16 +163,22 @@ def markdown(tables: dict[str, Any], settings: dict[str, Any], partial: dict[str
 
 
 def _cell_text(cell: dict[str, Any] | None) -> str:
-    """``"67.5 +- 4.1"`` in percent; the checkpoint deviation when there is one, else the episodes'."""
+    """``"70.0 +- 45.8 [48.1, 85.5] (n=20)"`` in percent: the checkpoint deviation when there is one, else the
+    episodes', then the 95% interval and the distinct episodes behind the rate."""
     if cell is None:
         return "-"
     std = cell["std_checkpoints"] if cell["std_checkpoints"] is not None else cell["std_episodes"]
-    return f"{100 * cell['mean']:.1f} +- {100 * std:.1f}"
+    interval = interval_text((cell["ci95_low"], cell["ci95_high"]), cell["instances"])
+    return f"{100 * cell['mean']:.1f} +- {100 * std:.1f} {interval}"
+
+
+TERMINAL_LEGEND = "one-shot success %: mean +- std [95% Wilson interval] (n distinct episodes)"
 
 
 def print_table(tables: dict[str, Any]) -> str:
-    """The per-task (and, for one task, per-variation) table as plain text for the terminal, with the share of
-    episodes per task in which the agent did another variation than the one demonstrated."""
+    """The per-task (and, for one task, per-variation) table as plain text for the terminal, under a line that
+    says what its cells show, with the share of episodes per task in which the agent did another variation than
+    the one demonstrated."""
     agents = list(tables)
     per_task = _rows(tables, "per_task")
     rows = [("", *agents)]
@@ -162,7 +192,8 @@ def print_table(tables: dict[str, Any]) -> str:
     if len(per_task) > 1:
         rows.append(("all tasks", *(_cell_text(tables[a]["overall"]) for a in agents)))
     widths = [max(len(str(row[i])) for row in rows) for i in range(len(rows[0]))]
-    return "\n".join("  ".join(str(cell).ljust(width) for cell, width in zip(row, widths)) for row in rows)
+    table = ("  ".join(str(cell).ljust(width) for cell, width in zip(row, widths)) for row in rows)
+    return "\n".join([TERMINAL_LEGEND, *table])
 
 
 def report_paths(path: Path) -> tuple[Path, Path]:

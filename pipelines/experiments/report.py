@@ -2,9 +2,13 @@
 
 A table cell is one (method or variant, task): each training seed's success is the mean of its last
 ``eval_checkpoints`` checkpoints (each ``eval_episodes`` episodes per variation, on mosaic-eval's held-out
-instances), and the cell is the mean +- std over seeds. The paper's published number stands beside it, labelled
-"paper"; "n/r" where it is not on record (:mod:`.paper_results`). Cells whose evaluations have not run yet say
-how many are missing: numbers come only from runs.
+instances), and the cell is the mean +- std over seeds, then the 95% Wilson interval of that mean on the n
+held-out instances behind it (:mod:`pipelines.evaluation.intervals`): every seed and checkpoint replays the same
+instances, so n is one evaluation's episodes, not their sum; with 10 episodes per variation of a task of 4
+variations (n=40) the interval still reaches 15 points either way. The interval is the episodes' uncertainty,
+the "+-" the seeds' spread. The paper's published number stands beside it, labelled "paper"; "n/r" where it is
+not on record (:mod:`.paper_results`). Cells whose evaluations have not run yet say how many are missing:
+numbers come only from runs.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import numpy as np
 
 from mosaic_data.atomic_files import write_bytes_atomically
 from mosaic_data.collection.metadata import write_json_atomically
+from pipelines.evaluation.intervals import interval_text, rate_interval
 
 from .paper_results import SOURCES, paper_number
 from .presets import ExperimentPreset
@@ -27,7 +32,7 @@ from .recipes import ABLATIONS, Evaluation, Plan
 TABLE_TITLES = {
     "single-task": "Table I, single-task: trained and evaluated on each task",
     "multi-task": "Table I, multi-task: one model on all tasks, evaluated per task",
-    "novel-task": "Table II, No Training: trained on the other tasks, one-shot on the held-out task",
+    "novel-task": "Table II, Novel-task: trained on the other tasks, one-shot on the held-out task",
     "fine-tune": "Table II, Fine-tune: the novel-task model fine-tuned on all of the held-out task's data",
     "ablations": "Appendix ablations: MOSAIC with one option changed",
 }
@@ -42,7 +47,9 @@ class CellResult:
     fraction: int | None = None
     mode: str | None = None
     per_seed: dict[int, float] = field(default_factory=dict)
-    episodes: int = 0
+    episodes: int = 0  # of all its evaluations together
+    successes: int = 0
+    instances: int = 0  # distinct held-out episodes: every evaluation of the cell runs the same ones
     missing: int = 0  # planned evaluations without results yet
     confusion: list[list[int]] | None = None
     confusion_rows: list[int] | None = None
@@ -58,14 +65,21 @@ class CellResult:
         return float(np.std(list(self.per_seed.values()))) if self.per_seed else None
 
     @property
+    def interval(self) -> tuple[float, float] | None:
+        """The 95% Wilson interval of ``mean`` on the cell's instances; None before any evaluation ran."""
+        return rate_interval(self.mean, self.instances) if self.per_seed else None
+
+    @property
     def paper(self) -> float | None:
-        return paper_number(self.table, self.row, self.task)
+        return paper_number(self.table, self.row, self.task, self.fraction, self.mode)
 
     def to_json(self) -> dict[str, Any]:
         return {
             "table": self.table, "row": self.row, "task": self.task, "fraction": self.fraction, "mode": self.mode,
             "success_per_seed": {str(seed): value for seed, value in sorted(self.per_seed.items())},
-            "mean": self.mean, "std_over_seeds": self.std, "episodes": self.episodes,
+            "mean": self.mean, "std_over_seeds": self.std, "episodes": self.episodes, "successes": self.successes,
+            "instances": self.instances, "ci95_low": None if self.interval is None else self.interval[0],
+            "ci95_high": None if self.interval is None else self.interval[1],
             "missing_evaluations": self.missing, "paper": self.paper,
             "wrong_variation_share": self.wrong_variation_episodes / self.episodes if self.episodes else None,
             "confusion": None if self.confusion is None else {
@@ -99,6 +113,8 @@ def cells_of(plan: Plan) -> list[CellResult]:
             continue
         per_seed_checkpoints[key][evaluation.seed].append(row["mean"])
         cell.episodes += row["episodes"]
+        cell.successes += row["successes"]
+        cell.instances = max(cell.instances, row.get("instances", row["episodes"]))  # no "instances": one checkpoint
         matrix = row["confusion"]
         counts = np.array(matrix["counts"])
         cell.confusion = (np.array(cell.confusion) + counts).tolist() if cell.confusion is not None else counts.tolist()
@@ -143,14 +159,15 @@ def _percent(value: float | None) -> str:
 
 
 def cell_text(cell: CellResult | None) -> str:
-    """``"25.0 +- 5.0 (paper 67.1)"``; what is missing says so."""
+    """``"25.0 +- 5.0 [14.2, 40.2] (n=40) (paper 67.1)"``: mean +- std over seeds, the 95% interval on the n
+    held-out instances; what is missing says so."""
     if cell is None:
         return "-"
     to_go = f"{cell.missing} evaluation{'s' if cell.missing != 1 else ''} to go"
     if cell.mean is None:
         ours = f"not run ({to_go})"
     else:
-        ours = f"{_percent(cell.mean)} +- {_percent(cell.std)}"
+        ours = f"{_percent(cell.mean)} +- {_percent(cell.std)} {interval_text(cell.interval, cell.instances)}"
         if cell.missing:
             ours += f" ({to_go})"
     paper = "n/r" if cell.paper is None else f"{cell.paper:.1f}"
@@ -195,7 +212,8 @@ def wrong_variation_table(cells: list[CellResult]) -> str:
         if cell.episodes:
             share = cell.wrong_variation_episodes / cell.episodes
             label = cell.row + (f", {cell.mode} {cell.fraction}%" if cell.fraction else "")
-            lines.append(f"| {cell.table} | {label} | {cell.task} | {cell.episodes} | {_percent(cell.mean)}% | "
+            success = f"{_percent(cell.mean)}% {interval_text(cell.interval, cell.instances)}"
+            lines.append(f"| {cell.table} | {label} | {cell.task} | {cell.episodes} | {success} | "
                          f"{100 * share:.0f}% | [png](figures/{confusion_name(cell)}) |")
     return "\n".join(lines) + "\n"
 
@@ -229,8 +247,10 @@ def write_report(output_dir: Path, entries: list[dict[str, Any]]) -> dict[str, P
     figures_dir = output_dir / "figures"
     figures_dir.mkdir(parents=True, exist_ok=True)
     lines = ["# mosaic-experiment: one-shot success (%)\n",
-             "Cells: ours, mean +- std over training seeds, then the paper's published number (paper); "
-             "n/r: the paper's number is not on record in this toolkit. Numbers come only from runs in this folder.\n"]
+             "Cells: ours, mean +- std over training seeds and [95% Wilson interval] on the n held-out episodes "
+             "that every seed and checkpoint replays, then the paper's published number (paper); "
+             "n/r: the paper's number is not on record in this toolkit. Numbers come only from runs in this folder. "
+             "The interval is how well the episodes pin the rate down; the +- is the spread between seeds.\n"]
     summary: dict[str, Any] = {"recipes": []}
     for entry in entries:
         plan: Plan = entry["plan"]

@@ -10,6 +10,7 @@ import pytest
 from pipelines.evaluation.agents import AgentSpec
 from pipelines.evaluation.confusion import NONE_COLUMN, heat_map_path, write_heat_maps
 from pipelines.evaluation.demo_sources import DemoSourceSpec
+from pipelines.evaluation.intervals import rate_interval
 from pipelines.evaluation.report import print_table, summarize, write_reports
 from pipelines.evaluation.rollouts import EpisodeSpec
 from pipelines.evaluation.runner import run_episodes
@@ -76,3 +77,8 @@ def test_several_checkpoints_are_summed_and_kept_apart(door_results):
     assert matrix["counts"] == [[1, 0, 0, 1, 0], [0, 0, 0, 2, 0]]
     assert matrix["per_checkpoint"] == {"expert": [[1, 0, 0, 0, 0], [0, 0, 0, 1, 0]],
                                         "blind expert": [[0, 0, 0, 1, 0], [0, 0, 0, 1, 0]]}
+    # both checkpoints replay the same 2 instances: 3 successes in 4 episodes is a rate of 0.75 on 2 trials
+    row = tables["both"]["per_task"][0]
+    assert (row["episodes"], row["successes"], row["instances"], row["mean"]) == (4, 3, 2, 0.75)
+    assert (row["ci95_low"], row["ci95_high"]) == pytest.approx(rate_interval(0.75, 2))
+    assert "75.0 +- 25.0 [19.8, 97.3] (n=2)" in print_table(tables)  # not 3/4: [30.1, 95.4] (n=4)

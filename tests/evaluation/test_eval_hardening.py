@@ -117,7 +117,7 @@ def test_a_partial_report_with_an_agent_that_finished_nothing_still_renders(tmp_
 
     tables = summarize([result(0, True), result(2, False)], {"expert": {0: "expert"}, "untrained": {1: "untrained"}})
     settings = {"episodes_per_variation": 1, "seed": 0, "demo_source": "fresh"}
-    assert "| door 2: door 2 | 0.0 +- 0.0 | - |" in markdown(tables, settings)
+    assert "| door 2: door 2 | 0.0 +- 0.0 [0.0, 79.3] (n=1) | - |" in markdown(tables, settings)
     assert "door wrong variation  0.0%" in print_table(tables)
     assert "Partial results: 2 of 8" in markdown(tables, settings, {"finished": 2, "planned": 8, "reason": "a worker died"})
 

@@ -9,6 +9,8 @@ import pytest
 from rerun_helpers import rows_per_entity
 
 from pipelines.evaluation.cli import main as mosaic_eval
+from pipelines.evaluation.intervals import interval_text, wilson_interval
+from pipelines.evaluation.report import TERMINAL_LEGEND
 
 
 def _run(tmp_path, *args):
@@ -44,7 +46,7 @@ def test_untrained_checkpoint_one_episode_reports_and_recording(tmp_path, tiny_c
     assert {"/demo/used/0", "/demo/used/3/attention", "/attention_on_demo/layer_1", "/success", "/episode"} <= set(rows)
 
 
-def test_expert_row_reaches_its_target_on_door_with_two_workers(tmp_path):
+def test_expert_row_reaches_its_target_on_door_with_two_workers(tmp_path, capsys):
     code, output = _run(tmp_path, "--baseline", "expert", "--task", "door", "--episodes-per-variation", "2", "--workers", "2")
     assert code == 0
     report = json.loads(output.read_text())
@@ -53,6 +55,25 @@ def test_expert_row_reaches_its_target_on_door_with_two_workers(tmp_path):
     confusion = report["tables"]["expert"]["per_task"][0]["confusion"]
     assert sum(confusion["counts"][v][v] for v in range(4)) == round(8 * overall["mean"])  # successes: the diagonal
     assert report["timing"]["workers"] == 2
+    # every cell: its episodes, successes and 95% Wilson interval, in the JSON, the Markdown and the terminal
+    task_row = report["tables"]["expert"]["per_task"][0]
+    assert (task_row["episodes"], task_row["instances"], task_row["successes"]) == (8, 8, round(8 * task_row["mean"]))
+    assert (task_row["ci95_low"], task_row["ci95_high"]) == pytest.approx(wilson_interval(task_row["successes"], 8))
+    assert task_row["ci95_high"] - task_row["ci95_low"] > 0.3, "8 episodes cannot pin a rate down to 30 points"
+    text = interval_text((task_row["ci95_low"], task_row["ci95_high"]), 8)
+    assert text.endswith("(n=8)")
+    cell = f"{100 * task_row['mean']:.1f} +- {100 * task_row['std_episodes']:.1f} {text}"
+    markdown = output.with_suffix(".md").read_text()
+    assert f"| door | {cell} |" in markdown
+    assert "95% Wilson score interval" in markdown
+    for row in report["tables"]["expert"]["per_variation"]:
+        assert row["episodes"] == row["instances"] == 2 and row["ci95_low"] <= row["mean"] <= row["ci95_high"]
+        assert f"| door {row['variation']}: {row['description']} | {100 * row['mean']:.1f} +- " in markdown
+        assert f"{interval_text((row['ci95_low'], row['ci95_high']), 2)} |" in markdown
+    printed = capsys.readouterr().out.splitlines()
+    assert TERMINAL_LEGEND in printed
+    (all_line,) = [line for line in printed if line.startswith("door (all)")]
+    assert all_line.split(None, 2)[2].strip() == cell
 
 
 def test_results_do_not_depend_on_the_worker_count(tmp_path, tiny_checkpoint):

@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
+from pipelines.evaluation.intervals import wilson_interval
 from pipelines.evaluation.report import summarize
 from pipelines.evaluation.rollouts import EpisodeResult
 from pipelines.experiments import cli
@@ -50,15 +52,22 @@ def test_report_cells_are_the_mean_and_std_over_seeds_of_the_last_checkpoints(tm
     assert cells["mosaic"]["mean"] == 0.5 and cells["mosaic"]["std_over_seeds"] == 0.0
     assert cells["mosaic"]["paper"] == 67.1 and cells["mosaic"]["missing_evaluations"] == 0
     assert cells["tosil"]["success_per_seed"] == {"1": 0.0} and cells["tosil"]["missing_evaluations"] == 2
-    assert cells["tosil"]["paper"] is None  # T-OSIL's single-task door number is not on record
+    assert cells["tosil"]["paper"] == 57.9  # Table I, single-task door
     # failures that did variation 3 (and were not variation 3's own episode) count as the wrong variation
     counts = np.array(cells["mosaic"]["confusion"]["counts"])
     assert counts.sum() == 16 and cells["mosaic"]["episodes"] == 16
     wrong = sum(counts[row, 3] for row in range(3))
     assert cells["mosaic"]["wrong_variation_share"] == wrong / 16
+    # the interval: every seed and checkpoint replayed the same 4 instances, so 8 of 16 episodes is 0.5 on 4 trials
+    mosaic = cells["mosaic"]
+    assert (mosaic["successes"], mosaic["instances"]) == (8, 4)
+    assert (mosaic["ci95_low"], mosaic["ci95_high"]) == pytest.approx(wilson_interval(2, 4))
+    assert (cells["tosil"]["ci95_low"], cells["tosil"]["ci95_high"]) == pytest.approx(wilson_interval(0, 4))
     markdown = paths["markdown"].read_text()
-    assert "| MOSAIC | 50.0 +- 0.0 (paper 67.1) |" in markdown
-    assert "| T-OSIL | 0.0 +- 0.0 (2 evaluations to go) (paper n/r) |" in markdown
+    assert "| MOSAIC | 50.0 +- 0.0 [15.0, 85.0] (n=4) (paper 67.1) |" in markdown
+    assert "| T-OSIL | 0.0 +- 0.0 [0.0, 49.0] (n=4) (2 evaluations to go) (paper 57.9) |" in markdown
+    assert "| single-task | mosaic | door | 16 | 50.0% [15.0, 85.0] (n=4) |" in markdown
+    assert "95% Wilson interval" in markdown
     assert (output / "figures" / "bars_single-task.png").stat().st_size > 0
     assert (output / "figures" / "confusion_single-task_mosaic_door.png").stat().st_size > 0
 
@@ -76,3 +85,4 @@ def test_a_partial_evaluation_counts_as_missing(tmp_path):
     write_json_atomically(evaluation.results, {**content, "partial": {"finished": 3, "planned": 4, "reason": "died"}})
     cell = json.loads(cli.report(output)["json"].read_text())["recipes"][0]["cells"][0]
     assert cell["mean"] is None and cell["missing_evaluations"] == 1
+    assert cell["ci95_low"] is None and cell["ci95_high"] is None and cell["instances"] == 0

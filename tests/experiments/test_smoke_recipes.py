@@ -53,7 +53,8 @@ def test_single_task_smoke_runs_every_method_and_reports_them(smoke_data, tmp_pa
         task_row = json.loads(evaluation.results.read_text())["tables"]
         task_row = next(iter(task_row.values()))["per_task"][0]
         assert cell["mean"] == task_row["mean"] and cell["episodes"] == task_row["episodes"] == 4
-        assert f"| {name} | {100 * cell['mean']:.1f} +- 0.0 (paper " in markdown
+        interval = f"[{100 * cell['ci95_low']:.1f}, {100 * cell['ci95_high']:.1f}] (n=4)"
+        assert f"| {name} | {100 * cell['mean']:.1f} +- 0.0 {interval} (paper " in markdown
     assert "(paper 67.1)" in markdown  # MOSAIC's published single-task door number beside ours
     assert (output / "figures" / "bars_single-task.png").stat().st_size > 0
     assert (output / "figures" / "confusion_single-task_daml_door.png").stat().st_size > 0
@@ -91,11 +92,11 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
     summary = json.loads((output / "results.json").read_text())["recipes"][0]
     curves = {(c["mode"], c["fraction"]): c for c in summary["curves"]}
     assert set(curves) == {("fine-tune", 50), ("scratch", 50), ("fine-tune", 100), ("scratch", 100)}
-    # fine-tuning curves start at step 0 with the novel-task model's own evaluation (Table II, No Training)
+    # fine-tuning curves start at step 0 with the novel-task model's own evaluation (Table II, Novel-task)
     assert all(c["steps"] == ([0, 1, 2] if mode == "fine-tune" else [1, 2]) for (mode, _), c in curves.items())
     assert (output / "figures" / "fine_tune_door_mosaic.png").stat().st_size > 0
     markdown = (output / "results.md").read_text()
-    assert "Table II, No Training" in markdown and "Table II, Fine-tune" in markdown
+    assert "Table II, Novel-task" in markdown and "Table II, Fine-tune" in markdown
     assert "| MOSAIC, from scratch, 50% data |" in markdown
     # the fine-tuned runs started from the novel-task model, trained without the held-out task
     fine = stage_folder(output, target) / "command.txt"
