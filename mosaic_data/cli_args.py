@@ -65,14 +65,27 @@ def episode_count(text: str) -> int:
     return _bounded_int(text, 1, MAX_EPISODES, f"an episode count from 1 to {MAX_EPISODES}")
 
 
+MIN_IMAGE_SIDE = 16
+MAX_IMAGE_SIDE = 8192
+"""Largest camera height and width. The tasks size MuJoCo's offscreen framebuffer to the frame
+(``size_render_buffers``: ``offwidth`` x ``offheight``, 4x multisampled), and Mesa's software renderer (llvmpipe,
+what headless EGL falls back to) holds at most 1 GiB per buffer: 8192x8192 renders, 10000x10000 fails with
+"Offscreen framebuffer is not complete" inside the first worker, after the imports and the scene build."""
+
+
 def parse_image_size(text: str) -> tuple[int, int]:
-    """``"100x180"`` -> ``(100, 180)`` (height, width)."""
+    """``"100x180"`` -> ``(100, 180)`` (height, width), each side in ``MIN_IMAGE_SIDE .. MAX_IMAGE_SIDE``."""
     try:
         height, width = (int(part) for part in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected HEIGHTxWIDTH such as 100x180, got {text!r}") from None
-    if height < 16 or width < 16:
-        raise argparse.ArgumentTypeError(f"images must be at least 16x16, got {text!r}")
+    if height < MIN_IMAGE_SIDE or width < MIN_IMAGE_SIDE:
+        raise argparse.ArgumentTypeError(f"images must be at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}, got {text!r}")
+    if height > MAX_IMAGE_SIDE or width > MAX_IMAGE_SIDE:
+        raise argparse.ArgumentTypeError(
+            f"images must be at most {MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE} (the largest frame the offscreen renderer "
+            f"holds), got {text!r}: the paper's size is 100x180"
+        )
     return height, width
 
 

@@ -7,7 +7,15 @@ import argparse
 import pytest
 
 from mosaic_data.cli import build_parser as mosaic_data_parser
-from mosaic_data.cli_args import MAX_EPISODES, episode_count, non_negative_int, parse_int_list, positive_int
+from mosaic_data.cli_args import (
+    MAX_EPISODES,
+    MAX_IMAGE_SIDE,
+    episode_count,
+    non_negative_int,
+    parse_image_size,
+    parse_int_list,
+    positive_int,
+)
 from pipelines.evaluation.cli import build_parser as mosaic_eval_parser
 
 COMMANDS = {
@@ -52,3 +60,20 @@ def test_good_values_parse():
     assert non_negative_int("0") == 0 and positive_int("2") == 2 and episode_count(str(MAX_EPISODES)) == MAX_EPISODES
     with pytest.raises(argparse.ArgumentTypeError):
         positive_int("0")
+
+
+@pytest.mark.parametrize("command", ["collect", "mosaic-eval"])
+@pytest.mark.parametrize("size", ["10000x10000", "100x9000", "8193x16"])
+def test_image_sizes_beyond_the_renderer_are_refused_up_front(command, size, capsys):
+    """Before the fix: collect failed 30 s into its first shard ("Offscreen framebuffer is not complete"), leaving a
+    .collecting folder behind, and mosaic-eval printed a traceback."""
+    message = _refusal(command, ["--image-size", size], capsys)
+    assert message == (
+        f"argument --image-size: images must be at most {MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE} (the largest frame the "
+        f"offscreen renderer holds), got {size!r}: the paper's size is 100x180"
+    )
+
+
+def test_the_largest_image_size_parses():
+    assert parse_image_size(f"{MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE}") == (MAX_IMAGE_SIDE, MAX_IMAGE_SIDE)
+    assert parse_image_size("16x8192") == (16, 8192)

@@ -99,6 +99,42 @@ def test_help_texts_load_no_heavy_module():
         assert loaded_after(code) == set(), code
 
 
+def test_bad_arguments_are_refused_before_the_heavy_imports(tmp_path):
+    """``collect --task doorr`` took 7-8 s to say the task is unknown (LeRobot's writer was loaded first), and
+    ``mosaic-eval`` loaded torch and the simulator for it: task names, variations, the output folder and the Ray
+    address are plain data, checked first. One fresh interpreter runs every case."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    cases = [
+        ("mosaic_data.cli", ["collect", "--task", "doorr"], "did you mean 'door'?"),
+        ("mosaic_data.cli", ["collect", "--task", "door", "--variations", "0,9"], "variation 9"),
+        ("mosaic_data.cli", ["collect", "--task", "door", "--output-dir", str(blocker / "out")], "not a writable folder"),
+        ("mosaic_data.cli", ["collect", "--task", "door", "--ray-address", "auto"], "--ray-address needs --executor ray"),
+        ("mosaic_data.cli", ["merge", "a", "b", "--repo-id", "mosaic/ab_panda", "--output-dir", str(blocker)], "a file"),
+        ("pipelines.evaluation.cli", ["--baseline", "expert", "--task", "doorr"], "did you mean 'door'?"),
+        ("pipelines.evaluation.cli", ["--baseline", "expert", "--task", "door", "--variations", "9"], "0..3"),
+        ("pipelines.evaluation.cli", ["--baseline", "expert", "--task", "door", "--ray-address", "auto"], "--executor ray"),
+    ]
+    result = run_python(
+        f"""
+        import importlib, sys
+        for module, argv, _ in {cases!r}:
+            print("STATUS:", importlib.import_module(module).main(argv))
+        print("LOADED:" + ",".join(m for m in ("robosuite", "mujoco", "torch", "lerobot", "datasets", "ray") if m in sys.modules))
+        """
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.count("STATUS: 2") == len(cases), result.stdout + result.stderr
+    errors = result.stderr.strip().splitlines()
+    assert len(errors) == len(cases), result.stderr
+    for line, (module, _, words) in zip(errors, cases):
+        assert line.startswith("mosaic-data: error:" if module == "mosaic_data.cli" else "mosaic-eval: error:"), line
+        assert words in line, line
+    loaded = next(line for line in result.stdout.splitlines() if line.startswith("LOADED:"))
+    assert loaded == "LOADED:", loaded  # none of the heavy modules
+    assert not blocker.with_name("out").exists() and sorted(tmp_path.iterdir()) == [blocker]
+
+
 def test_the_policy_trains_without_the_simulator():
     """The plugin, the policy and a training step with per-task loss weights (suite task strings)."""
     loaded = loaded_after(

@@ -11,10 +11,8 @@ from mosaic_data.cli_args import action_noise, add_executor_arguments, episode_c
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from mosaic_data.collection.collect import CollectRequest, collect
-    from mosaic_data.collection.quiet import quiet_dataset_writing
+    from mosaic_data.collection.collect import CollectRequest, collect, plan_jobs  # no simulator, LeRobot or Ray
 
-    quiet_dataset_writing()  # the merges run in this process
     request = CollectRequest(
         task=args.task,
         robots=["panda", "sawyer"] if args.robot == "both" else [args.robot],
@@ -30,6 +28,10 @@ def cmd_collect(args: argparse.Namespace) -> int:
         image_width=args.image_size[1],
         action_noise=args.action_noise,
     )
+    plan_jobs(request)  # every input, in a blink: before the seconds of LeRobot's imports below
+    from mosaic_data.collection.quiet import quiet_dataset_writing
+
+    quiet_dataset_writing()  # the merges run in this process
     try:
         report = collect(request, show_progress=not args.quiet)
     except KeyboardInterrupt:
@@ -52,15 +54,16 @@ def cmd_collect(args: argparse.Namespace) -> int:
 def cmd_merge(args: argparse.Namespace) -> int:
     from mosaic_data.collection.merge import check_replaceable, merge_datasets, remove_stale_work
     from mosaic_data.collection.quiet import quiet_dataset_writing
-    from mosaic_data.collection.schema import dataset_root, resolve_dataset
+    from mosaic_data.collection.schema import check_output_dir, dataset_root, resolve_dataset
 
-    quiet_dataset_writing()
     root = dataset_root(args.output_dir, args.repo_id)  # first: an empty or bare --repo-id must not name a folder
+    check_output_dir(args.output_dir, args.repo_id.split("/")[0])  # a file in the way: now, not after the merge's work
     sources = [resolve_dataset(name, args.output_dir) for name in args.datasets]
     remove_stale_work(root)  # a killed merge's leftovers: its old dataset comes back before we look
     if (root.exists() or root.is_symlink()) and not args.overwrite:
         raise ValueError(f"{root} already exists: choose another --repo-id, or add --overwrite to replace it")
     check_replaceable(root)  # --overwrite replaces one dataset folder, never a folder of other things
+    quiet_dataset_writing()  # LeRobot's bars off: its import takes seconds, so only once the inputs are checked
     sidecar = merge_datasets(sources, args.repo_id, root)
     print(f"{args.repo_id}: merged {len(sources)} datasets, {len(sidecar['episodes'])} episodes -> {root}")
     return 0

@@ -27,6 +27,7 @@ from mosaic_data.collection.merge import aggregate_into, check_replaceable, merg
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
 from mosaic_data.collection.plan import MAX_EPISODES, CollectionSettings, DatasetJob, ShardSpec
 from mosaic_data.collection.schema import (
+    check_output_dir,
     dataset_root,
     is_lerobot_dataset,
     merged_repo_id_for,
@@ -93,16 +94,21 @@ class CollectReport:
 
 # ---------------------------------------------------------------------- input checks
 def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
-    """The datasets to produce, after checking every input (raises ValueError naming the fix)."""
-    from mosaic_data.tasks import TASK_NAMES, get_task_spec, validate_robot  # the table only, not the simulator
+    """The datasets to produce, after checking every input (raises ValueError naming the fix).
+
+    Plain data and the file system only: ``mosaic-data collect`` calls it before it loads LeRobot, the simulator
+    or Ray, so a typo costs a fraction of a second, not the seconds of those imports.
+    """
+    from mosaic_data.tasks import TASK_NAMES, TASK_SPECS, get_task_spec, unknown_task_error, validate_robot  # the table only
 
     if request.task == ALL_TASKS:
         if request.variations is not None:
             raise ValueError("--variations cannot be combined with --task all: variation indices differ per task")
         tasks = list(TASK_NAMES)
-    else:
+    elif request.task in TASK_SPECS:
         tasks = [request.task]
-        get_task_spec(request.task)
+    else:
+        raise unknown_task_error(request.task, "--task", extra_choices=(ALL_TASKS,))
     for robot in request.robots:
         validate_robot(robot)
     if not 1 <= request.episodes <= MAX_EPISODES:
@@ -111,6 +117,8 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
         raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {request.executor!r}")
     if request.ray_address is not None and request.executor != "ray":
         raise ValueError("--ray-address needs --executor ray")
+    if request.ray_address is not None and not request.ray_address.strip():
+        raise ValueError("--ray-address is empty: give the cluster's address, e.g. 'auto' or 'head-node:6379', or leave it out")
     if request.workers is not None and request.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {request.workers}")
     if request.seed < 0:
@@ -120,7 +128,7 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
             raise ValueError("--variations is empty: give indices such as 0,3,5")
         if len(set(request.variations)) != len(request.variations):
             raise ValueError(f"--variations lists an index twice: {','.join(map(str, request.variations))}")
-    _check_writable(request.output_dir)
+    check_output_dir(request.output_dir)
     jobs = []
     for task in tasks:
         spec = get_task_spec(task)
@@ -145,19 +153,6 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
 def source_of(job: DatasetJob) -> dict[str, Any]:
     """How a dataset was made, as recorded in its sidecar; equal sources mean the dataset is already complete."""
     return {"repo_id": job.repo_id, "task": job.settings.task, "robot": job.settings.robot, "settings": job.settings.to_json()}
-
-
-def _check_writable(output_dir: Path | None) -> None:
-    from mosaic_data.collection.schema import default_output_dir
-
-    target = Path(output_dir if output_dir is not None else default_output_dir()).expanduser().absolute()
-    existing = target
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"cannot write datasets under {target}: {existing} is not a writable folder (choose another --output-dir)")
-    if target.exists() and not target.is_dir():
-        raise ValueError(f"cannot write datasets under {target}: it is a file, not a folder (choose another --output-dir)")
 
 
 def _existing_dataset_state(root: Path, expected_sources: list[dict], request: CollectRequest, resumable: Path | None = None) -> str:

@@ -169,9 +169,11 @@ def sidecar_format_problem(sidecar: Any) -> str | None:
     json_types = {list: "a list", str: "a string", int: "a number", float: "a number", bool: "a boolean", type(None): "null"}
     if not isinstance(sidecar, dict):
         return f"it holds {json_types.get(type(sidecar), type(sidecar).__name__)}, not an object"
+    if (problem := _format_version_problem(sidecar)) is not None:
+        return problem
     for key, kind in (("tasks", dict), ("robots", list), ("sources", list), ("episodes", list)):
         if not isinstance(sidecar.get(key), kind):
-            return f"it has no '{key}'" if key not in sidecar else f"its '{key}' is not a {'object' if kind is dict else 'list'}"
+            return f"it has no '{key}'" if key not in sidecar else f"its '{key}' is not {'an object' if kind is dict else 'a list'}"
     if not sidecar["sources"]:
         return "it lists no sources, so not the collection settings"
     for number, source in enumerate(sidecar["sources"]):
@@ -195,6 +197,18 @@ def sidecar_format_problem(sidecar: Any) -> str | None:
                 return f"its record {number} of '{key}' {what}"
             if (record["task"], record["variation"]) not in descriptions:
                 return f"its record {number} of '{key}' is {record['task']} variation {record['variation']}, which no variation table holds"
+    return None
+
+
+def _format_version_problem(sidecar: dict[str, Any]) -> str | None:
+    """Why the sidecar's ``format_version`` is not the one this code reads, or None. Checked first: a sidecar of
+    another layout must not be read as this one, nor fail on a field it names differently."""
+    if "format_version" not in sidecar:
+        return f"it has no 'format_version', expected {FORMAT_VERSION}"
+    version = sidecar["format_version"]
+    if type(version) is not int or version != FORMAT_VERSION:  # not bool or float: JSON true or 1.0 is no version
+        text = json.dumps(version)
+        return f"its 'format_version' is {text if len(text) <= 40 else text[:37] + '...'}, expected {FORMAT_VERSION}"
     return None
 
 

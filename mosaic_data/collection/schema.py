@@ -8,7 +8,9 @@ the default place is LeRobot's ``HF_LEROBOT_HOME``.
 from __future__ import annotations
 
 import json
+import os
 import re
+import sys
 from pathlib import Path
 
 from mosaic_data.constants import (  # noqa: F401  (CAMERA_KEY and FPS are imported from here too)
@@ -76,10 +78,35 @@ def merged_repo_id_for(robot: str) -> str:
 
 
 def default_output_dir() -> Path:
-    """LeRobot's dataset home, read at call time so that ``HF_LEROBOT_HOME`` set in tests is honoured."""
-    from lerobot.utils.constants import HF_LEROBOT_HOME
+    """LeRobot's dataset home, read at call time so that ``HF_LEROBOT_HOME`` set in tests is honoured.
 
-    return Path(HF_LEROBOT_HOME)
+    Once LeRobot is loaded its own value counts (it reads the variable once, at import); before, the same rule
+    (``$HF_LEROBOT_HOME``, else ``$HF_HOME/lerobot``) is applied here, because importing LeRobot for it costs
+    seconds (torch) and a command checks its output folder before any heavy import.
+    """
+    lerobot_constants = sys.modules.get("lerobot.utils.constants")
+    if lerobot_constants is not None:
+        return Path(lerobot_constants.HF_LEROBOT_HOME)
+    from huggingface_hub.constants import HF_HOME  # what LeRobot's default derives from; no torch
+
+    return Path(os.getenv("HF_LEROBOT_HOME", Path(HF_HOME) / "lerobot")).expanduser()
+
+
+def check_output_dir(output_dir: Path | None, namespace: str = REPO_NAMESPACE) -> None:
+    """Raise a one-line ValueError unless datasets can be made in ``<output_dir>/<namespace>`` (LeRobot's home
+    without ``output_dir``); missing folders are made later. Commands call it before any work: a file in the way
+    would otherwise stop them only when the first dataset is written, seconds or minutes in, with a traceback."""
+    target = (default_output_dir() if output_dir is None else Path(output_dir)).expanduser().absolute()
+    fix = "choose another --output-dir" if output_dir is not None else "set HF_LEROBOT_HOME to a folder, or pass --output-dir"
+    existing = target / namespace
+    while not existing.exists() and existing != existing.parent:  # the folders still to make; the first one there decides
+        existing = existing.parent
+    if existing == target and not target.is_dir():
+        raise ValueError(f"cannot write datasets under {target}: it is a file, not a folder ({fix})")
+    if not existing.is_dir():
+        raise ValueError(f"cannot write datasets under {target}: {existing} is a file, not a writable folder ({fix})")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write datasets under {target}: {existing} is not a writable folder ({fix})")
 
 
 def dataset_root(output_dir: Path | None, repo_id: str, flag: str = "--repo-id") -> Path:

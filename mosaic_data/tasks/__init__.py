@@ -18,6 +18,7 @@ from mosaic_data.tasks.spec import (
     TaskSpec,
     Variation,
     get_task_spec,
+    unknown_task_error,
     validate_robot,
 )
 
@@ -39,7 +40,7 @@ CLASS_NAMES: dict[str, str] = {
 def get_task_class(task: str) -> type[MosaicTaskEnv]:
     """The robosuite environment class of ``task`` (imports the simulator)."""
     if task not in CLASS_NAMES:
-        raise ValueError(f"unknown task {task!r}: choose one of {', '.join(TASK_NAMES)}")
+        raise unknown_task_error(task)
     return getattr(importlib.import_module(f"mosaic_data.tasks.{task}"), CLASS_NAMES[task])
 
 
@@ -69,7 +70,7 @@ def select_variations(
             raise ValueError(f"{variations_option} applies to one task; drop it with {task_option} all")
         return {name: [v.index for v in table] for name, table in VARIATIONS.items()}
     if task not in VARIATIONS:
-        raise ValueError(f"unknown task {task!r} ({task_option}): choose one of {', '.join(TASK_NAMES)} or 'all'")
+        raise unknown_task_error(task, task_option, extra_choices=("all",))
     count = len(VARIATIONS[task])
     if variations is None:
         return {task: list(range(count))}

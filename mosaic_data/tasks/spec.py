@@ -8,6 +8,7 @@ imports only the standard library (the ``mosaic_data`` package itself adds gymna
 
 from __future__ import annotations
 
+import difflib
 import functools
 import itertools
 import numbers
@@ -189,10 +190,22 @@ VARIATIONS: dict[str, tuple[Variation, ...]] = {name: spec.variations for name, 
 """Task key -> its variations."""
 
 
+def unknown_task_error(task: str, option: str | None = None, extra_choices: tuple[str, ...] = ()) -> ValueError:
+    """The error for a task key the suite does not have: the closest key first, since a typo ('doorr') is the usual
+    cause, then every choice. ``option`` names the command's flag; ``extra_choices`` are its other accepted values
+    (e.g. 'all'), suggested and listed too."""
+    choices = list(TASK_NAMES) + list(extra_choices)
+    where = f" ({option})" if option else ""
+    close = difflib.get_close_matches(str(task), choices, n=1, cutoff=0.6)
+    hint = f" did you mean {close[0]!r}?" if close else ""
+    listed = ", ".join(TASK_NAMES) + "".join(f" or {choice!r}" for choice in extra_choices)
+    return ValueError(f"unknown task {task!r}{where}:{hint} choose one of {listed}")
+
+
 def get_task_spec(task: str) -> TaskSpec:
-    """The spec of ``task``; ValueError naming the choices for an unknown key."""
+    """The spec of ``task``; ValueError naming the closest key and the choices for an unknown key."""
     if task not in TASK_SPECS:
-        raise ValueError(f"unknown task {task!r}: choose one of {', '.join(TASK_SPECS)}")
+        raise unknown_task_error(task)
     return TASK_SPECS[task]
 
 

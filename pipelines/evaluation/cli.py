@@ -128,9 +128,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .options import EvaluationError, check_arguments
+
+    check_arguments(args)  # a typo in --task: one line in a blink, before the seconds of the imports below
     from tqdm import tqdm
 
-    from .options import EvaluationError
     from .plan import EvaluationPlan
     from .recording import EvaluationRecording
     from .report import check_output_paths, print_table, report_paths, summarize, timing, write_reports
@@ -145,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_paths(outputs | ({"--rerun": args.rerun} if args.rerun else {}))  # before any work
 
     plan = EvaluationPlan.from_args(args)
+    for warning in plan.warnings:
+        print(f"mosaic-eval: warning: {warning}", file=sys.stderr)
     recording = EvaluationRecording(args.rerun, plan.n_demo_frames, args.attention_layer) if args.rerun else None
     progress = tqdm(total=len(plan.episodes), desc="episodes", unit="ep", disable=args.quiet, dynamic_ncols=True)
     finished = []  # every result as it arrives: what an evaluation that stops early still writes

@@ -6,6 +6,8 @@ import them from here, so there is one definition and the help costs no heavy im
 
 from __future__ import annotations
 
+import argparse
+
 from mosaic_data.constants import EVAL_BASE_SEED  # noqa: F401  (mosaic-eval's default --seed; standard library only)
 
 BASELINES: tuple[str, ...] = ("expert", "untrained")
@@ -14,3 +16,22 @@ BASELINES: tuple[str, ...] = ("expert", "untrained")
 
 class EvaluationError(ValueError):
     """Bad evaluation input (checkpoint, task, variations, demo dataset): the message names the fix."""
+
+
+def check_arguments(args: argparse.Namespace) -> dict[str, list[int]]:
+    """Task -> variations of ``--task`` and ``--variations``, after the checks that need no checkpoint: task names,
+    variations, what to evaluate and the executor's options. Plain data only (the suite's table), so a typo is
+    reported before torch, LeRobot or the simulator load, which takes seconds."""
+    from mosaic_data.tasks import select_variations  # the table only, not the simulator
+
+    try:
+        tasks = select_variations(args.task, args.variations)
+    except ValueError as error:
+        raise EvaluationError(str(error)) from None
+    if args.ray_address is not None and args.executor != "ray":
+        raise EvaluationError("--ray-address needs --executor ray")
+    if args.ray_address is not None and not args.ray_address.strip():
+        raise EvaluationError("--ray-address is empty: give the cluster's address, e.g. 'auto' or 'head-node:6379', or leave it out")
+    if not args.policy_paths and not args.baseline:
+        raise EvaluationError("nothing to evaluate: pass --policy.path=<checkpoint> and/or --baseline expert|untrained")
+    return tasks

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mosaic_data.constants import IMAGE_HEIGHT, IMAGE_WIDTH, MAX_EPISODES_PER_VARIATION, N_DEMO_FRAMES
-from mosaic_data.tasks import select_variations
 
 from .agents import (
     AgentSpec,
@@ -28,6 +27,7 @@ from .agents import (
     takes_demo,
 )
 from .demo_sources import DatasetDemoSource, DemoSourceSpec
+from .options import check_arguments
 from .rollouts import EpisodeSpec
 from .seeds import SEED_RULE, episode_seed, episode_seeds
 
@@ -46,22 +46,20 @@ class EvaluationPlan:
     episodes: list[EpisodeSpec] = field(default_factory=list)
     n_demo_frames: int = N_DEMO_FRAMES
     max_steps: int | None = None
+    warnings: list[str] = field(default_factory=list)
+    """Inputs that are valid but have no effect, for the command to say (one line each)."""
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> EvaluationPlan:
-        tasks = _tasks_and_variations(args.task, args.variations)
+        tasks = check_arguments(args)
         if not 1 <= args.episodes_per_variation <= MAX_EPISODES_PER_VARIATION:
             raise EvaluationError(
                 f"--episodes-per-variation must be in 1..{MAX_EPISODES_PER_VARIATION}, got {args.episodes_per_variation}"
             )
         if args.max_steps is not None and args.max_steps < 1:
             raise EvaluationError(f"--max-steps must be >= 1, got {args.max_steps}")
-        if args.ray_address is not None and args.executor != "ray":
-            raise EvaluationError("--ray-address needs --executor ray")
         if args.workers is not None and args.workers < 1:
             raise EvaluationError(f"--workers must be >= 1, got {args.workers}")
-        if not args.policy_paths and not args.baseline:
-            raise EvaluationError("nothing to evaluate: pass --policy.path=<checkpoint> and/or --baseline expert|untrained")
         record = args.rerun is not None
         if record and args.rerun.suffix != ".rrd":
             raise EvaluationError(f"--rerun must name an .rrd file, got {str(args.rerun)!r}")
@@ -85,7 +83,10 @@ class EvaluationPlan:
             agents.append(AgentSpec(baseline, baseline, None, default_hw, record))
 
         demo_source = DemoSourceSpec()
-        if args.demo_dataset is not None:
+        warnings = []
+        if args.demo_dataset is not None and not any(agent.needs_demo for agent in agents) and not record:
+            warnings.append(_unused_demo_dataset(args.demo_dataset, agents))
+        elif args.demo_dataset is not None:
             from mosaic_data.collection.schema import resolve_dataset
 
             try:
@@ -103,7 +104,10 @@ class EvaluationPlan:
 
         if not any(agent.needs_demo for agent in agents):
             n_demo_frames = 0  # the recording shows no "frames the policy conditions on" panels
-        plan = cls(tasks, agents, groups, demo_source, args.episodes_per_variation, args.seed, n_demo_frames=n_demo_frames, max_steps=args.max_steps)
+        plan = cls(
+            tasks, agents, groups, demo_source, args.episodes_per_variation, args.seed, n_demo_frames=n_demo_frames,
+            max_steps=args.max_steps, warnings=warnings,
+        )
         recorded_agents = {min(members) for members in groups.values()}
         for agent_index in range(len(agents)):
             for task, variations in tasks.items():
@@ -129,8 +133,11 @@ class EvaluationPlan:
         }
 
 
-def _tasks_and_variations(task: str, variations: list[int] | None) -> dict[str, list[int]]:
-    try:
-        return select_variations(task, variations)
-    except ValueError as error:
-        raise EvaluationError(str(error)) from None
+def _unused_demo_dataset(dataset: str, agents: list[AgentSpec]) -> str:
+    """Why ``--demo-dataset`` is neither read nor checked: no agent conditions on a demonstration and no recording
+    shows one. Said, so that an evaluation of the expert alone does not look like it used (or vouched for) it."""
+    names = ", ".join(dict.fromkeys("the expert baseline" if agent.kind == "expert" else agent.label for agent in agents))
+    return (
+        f"--demo-dataset {dataset} is unused and was not checked: no evaluated agent takes a demonstration ({names}; "
+        "the expert reads its goal from the simulator)"
+    )

@@ -20,10 +20,14 @@ from cli_errors import one_line_error
 
 from mosaic_data.collection.metadata import (
     CurrentEpisode,
+    SidecarError,
     align_sidecar,
+    build_sidecar,
     listed,
+    load_sidecar,
     read_aligned_sidecar,
     read_sidecar,
+    sidecar_format_problem,
     write_sidecar,
 )
 
@@ -173,8 +177,10 @@ def test_changed_actions_are_still_a_problem(door_output, tmp_path):
         (lambda sidecar: {**sidecar, "sources": [{k: v for k, v in sidecar["sources"][0].items() if k != "settings"}]},
          ["source 0 has no collection settings"]),
         (lambda sidecar: {k: v for k, v in sidecar.items() if k != "sources"}, ["has no 'sources'"]),
+        (lambda sidecar: {**sidecar, "tasks": []}, ["its 'tasks' is not an object"]),
+        (lambda sidecar: {**sidecar, "format_version": "x"}, ["its 'format_version' is \"x\", expected 1"]),
     ],
-    ids=["empty-list", "no-settings", "no-sources"],
+    ids=["empty-list", "no-settings", "no-sources", "tasks-a-list", "format-version-x"],
 )
 def test_broken_sidecar_is_one_line_naming_file_and_fix(door_output, tmp_path, cli, capsys, broken, words):
     root = tmp_path / "door_panda"
@@ -191,6 +197,40 @@ def test_broken_sidecar_is_one_line_naming_file_and_fix(door_output, tmp_path, c
     one_line_error(capsys, str(path), "not a MOSAIC sidecar", *words)
     assert cli("view", str(root), "--save", str(tmp_path / "x.rrd")) == 2
     one_line_error(capsys, str(path), "not a MOSAIC sidecar")
+
+
+def _small_sidecar() -> dict:
+    """A well-formed sidecar of one episode, as ``mosaic-data collect`` writes it (no dataset behind it)."""
+    settings = {"variations": [0], "episodes_per_variation": 1, "image_height": 56, "image_width": 96, "fps": 20}
+    source = {"repo_id": "mosaic/door_panda", "task": "door", "robot": "panda", "settings": settings}
+    record = {"episode_index": 0, "task": "door", "robot": "panda", "variation": 0, "seed": 0, "attempts": 1, "length": 9}
+    return build_sidecar("mosaic/door_panda", [source], [record])
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        ({"tasks": []}, "its 'tasks' is not an object"),
+        ({"episodes": {}}, "its 'episodes' is not a list"),
+        ({"format_version": "x"}, "its 'format_version' is \"x\", expected 1"),
+        ({"format_version": 2}, "its 'format_version' is 2, expected 1"),
+        ({"format_version": True}, "its 'format_version' is true, expected 1"),
+        ({"format_version": None}, "its 'format_version' is null, expected 1"),
+    ],
+)
+def test_sidecar_layout_and_version_are_checked_in_plain_words(tmp_path, change, words):
+    assert sidecar_format_problem(_small_sidecar()) is None
+    path = tmp_path / "mosaic.json"
+    path.write_text(json.dumps(_small_sidecar() | change))
+    with pytest.raises(SidecarError) as raised:
+        load_sidecar(path)
+    assert words in str(raised.value) and "not a MOSAIC sidecar" in str(raised.value)
+    assert "\n" not in str(raised.value)
+
+
+def test_a_sidecar_without_a_format_version_is_refused(tmp_path):
+    sidecar = {key: value for key, value in _small_sidecar().items() if key != "format_version"}
+    assert sidecar_format_problem(sidecar) == "it has no 'format_version', expected 1"
 
 
 def test_missing_sidecar_says_how_to_bring_it_back(door_output, tmp_path, cli, capsys):

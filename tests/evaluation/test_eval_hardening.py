@@ -242,6 +242,19 @@ def test_a_demo_video_missing_frames_is_named_before_rollouts(tmp_path, capsys, 
     assert "mosaic-data validate" in error and not output.exists()
 
 
+def test_a_demo_dataset_the_expert_does_not_use_is_said_to_be_unused(tmp_path, capsys):
+    """The expert reads its goal from the simulator: the dataset is never decoded, so the run must not look as if it
+    used (or vouched for) it, damaged as it is here."""
+    root, video = _demo_dataset(tmp_path)
+    overwrite_middle(video)
+    capsys.readouterr()  # what writing the dataset printed
+    code, output = _run(tmp_path, "--baseline", "expert", *SMALL, "--demo-dataset", str(root))
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "--demo-dataset" in line]
+    assert code == 0 and output.exists()
+    assert len(warnings) == 1 and warnings[0].startswith("mosaic-eval: warning:"), warnings
+    assert f"--demo-dataset {root} is unused" in warnings[0] and "the expert baseline" in warnings[0], warnings
+
+
 def test_a_video_that_fails_during_the_evaluation_is_named(tmp_path):
     """Damage found by the decoder in a worker (after the up-front check) names the file too."""
     from pipelines.evaluation.agents import EvaluationError

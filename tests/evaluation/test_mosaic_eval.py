@@ -94,6 +94,7 @@ def test_results_do_not_depend_on_the_worker_count(tmp_path, tiny_checkpoint):
     "args, message",
     [
         (["--baseline", "expert", "--task", "laundry"], "unknown task 'laundry'"),
+        (["--baseline", "expert", "--task", "doorr"], "unknown task 'doorr' (--task): did you mean 'door'?"),
         (["--baseline", "expert", "--task", "door", "--variations", "4"], "door has variations 0..3"),
         (["--policy.path=/nonexistent/checkpoint", "--task", "door"], "does not exist"),
         (["--task", "door"], "nothing to evaluate"),
