@@ -33,12 +33,11 @@ ASSUMED_GPU_SECONDS_PER_STEP = 0.3
 MEASURED_ROLLOUT_STEPS_PER_S = 13.5
 """Control steps per second per evaluation worker with MOSAIC at 100x180, measured on this project's 2-core
 machine (README, speed section): the rollout part of the estimate."""
-MEASURED_CPU_SECONDS_PER_STEP = {"resnet18": 2.5, "conv": 0.85}
+MEASURED_CPU_SECONDS_PER_STEP = {"resnet18": 2.5, "conv": 1.1}
 """Seconds per MOSAIC training step on this project's 2-core machine at 48x88, batch 16, 7 frames (the ``cpu``
-preset's sizes), per ``--policy.vision_backbone``: resnet18 from lerobot-train's ``updt_s``; conv is that figure
-over the 3x (2.9-3.2x in three runs) that ``python -m pipelines.bench.policy_train_step --compare-trunks``
-measures between the two trunks in one run. The training part of the estimate on ``--policy.device=cpu``, scaled
-by batch size and pixels per image."""
+preset's sizes), per ``--policy.vision_backbone``: lerobot-train's ``updt_s`` (conv: 0.95-1.14 s over a 500-step
+run, data loading sharing the cores). The training part of the estimate on ``--policy.device=cpu``, scaled by
+batch size and pixels per image."""
 CPU_REFERENCE_SIZES = (16, 48, 88)
 """Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""
 

@@ -60,7 +60,7 @@ class ExperimentPreset:
 
 PRESETS: dict[str, ExperimentPreset] = {
     "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
-    # About 40 minutes of training per MOSAIC model on 2 cores with the small conv trunk (0.85 s per step at batch 16,
+    # About 50 minutes of training per MOSAIC model on 2 cores with the small conv trunk (1.1 s per step at batch 16,
     # 48x88; the paper's resnet18 trunk: 2.5 s, about 2 hours); novel-task models train on 3 tasks.
     "cpu": ExperimentPreset(
         image_size="48x88", episodes=40, steps=2700, batch_size=16, vision_backbone="conv", save_every=900,
