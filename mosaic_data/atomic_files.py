@@ -5,6 +5,8 @@ which parallel workers may fill at the same moment: each writer writes its own t
 target and renames it over the target (atomic on POSIX), and a failed write leaves no temporary behind.
 ``mkstemp`` creates the temporary with mode 0600; it gets the mode a plain ``open`` would give (0666 less the
 umask) before the rename, so a shared dataset, report or cache stays as readable as the user's umask intends.
+:func:`give_plain_modes` does the same for a whole folder that another library filled (LeRobot's aggregation
+writes its videos through ``tempfile`` too).
 """
 
 from __future__ import annotations
@@ -14,11 +16,45 @@ import tempfile
 from pathlib import Path
 
 
+def current_umask() -> int:
+    """The process's umask, read without changing it where Linux shows it in ``/proc/self/status``.
+
+    Elsewhere it is set and restored at once (the only portable way to read it): a file another thread creates in
+    that instant would get mode 0666, so the ``/proc`` reading comes first.
+    """
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def plain_file_mode() -> int:
     """The mode ``open()`` gives a new file: 0666 less the umask (``mkstemp`` temporaries get 0600)."""
-    mask = os.umask(0)  # the only portable way to read it: set and restore at once
-    os.umask(mask)
-    return 0o666 & ~mask
+    return 0o666 & ~current_umask()
+
+
+def give_plain_modes(root: Path) -> None:
+    """Give ``root`` and every folder under it the mode ``mkdir`` would (0777 less the umask), and every file the
+    mode ``open()`` would (0666 less the umask): what is written under ``root`` is then as readable as the user's
+    umask says, whatever temporaries (0600 files, 0700 folders) the writer went through. Links are left alone."""
+    mask = current_umask()  # read once for the whole tree
+    folder_mode, file_mode = 0o777 & ~mask, 0o666 & ~mask
+    os.chmod(root, folder_mode)
+    for folder, folders, files in os.walk(root):
+        for name in folders:
+            path = os.path.join(folder, name)
+            if not os.path.islink(path):
+                os.chmod(path, folder_mode)
+        for name in files:
+            path = os.path.join(folder, name)
+            if not os.path.islink(path):
+                os.chmod(path, file_mode)
 
 
 def write_bytes_atomically(path: Path, content: bytes) -> None:

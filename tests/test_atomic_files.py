@@ -2,10 +2,12 @@
 
 import os
 import stat
+import tempfile
+from pathlib import Path
 
 import pytest
 
-from mosaic_data.atomic_files import write_bytes_atomically
+from mosaic_data.atomic_files import current_umask, give_plain_modes, write_bytes_atomically
 
 
 def test_writes_the_content_and_makes_the_folder(tmp_path):
@@ -32,3 +34,27 @@ def test_the_written_file_follows_the_umask_like_a_plain_open(tmp_path, umask, m
     finally:
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "shared.json").stat().st_mode) == mode
+
+
+def test_the_umask_is_read_without_being_changed():
+    previous = os.umask(0o027)
+    try:
+        assert current_umask() == 0o027
+        assert current_umask() == 0o027
+    finally:
+        os.umask(previous)
+
+
+def test_a_tree_written_through_temporaries_gets_the_modes_of_plain_open_and_mkdir(tmp_path):
+    previous = os.umask(0o022)
+    try:
+        folder = Path(tempfile.mkdtemp(dir=tmp_path))  # 0700
+        handle, video = tempfile.mkstemp(dir=folder, suffix=".mp4")  # 0600
+        os.close(handle)
+        (tmp_path / "link").symlink_to(video)
+        give_plain_modes(tmp_path)
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE(tmp_path.stat().st_mode) == 0o755
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o755
+    assert stat.S_IMODE(os.stat(video).st_mode) == 0o644

@@ -17,6 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from mosaic_data.atomic_files import give_plain_modes
 from mosaic_data.collection import CollectionError
 from mosaic_data.collection.metadata import build_sidecar, read_aligned_sidecar, write_sidecar
 from mosaic_data.collection.schema import feature_mismatch, is_lerobot_dataset, repo_id_of
@@ -34,6 +35,9 @@ def aggregate_into(
     kept: str = "the source datasets are untouched",
 ) -> None:
     """Aggregate ``(repo_id, root)`` sources in order into ``root`` with its sidecar, replacing it atomically.
+
+    Every file and folder of the result has the mode a plain ``open()`` or ``mkdir`` gives under the umask, as the
+    rest of the dataset has, so that whoever may read the metadata may read the videos too.
 
     A full disk (or quota) stops the merge with one CollectionError line saying where, and that nothing was lost:
     the partial build is removed, ``root`` keeps what it held, and ``kept`` says where the sources are.
@@ -53,6 +57,7 @@ def aggregate_into(
             aggr_root=building,
         )
         write_sidecar(building, sidecar)
+        give_plain_modes(building)  # LeRobot writes the merged videos through tempfile: mode 0600
         replace_dataset(building, root)
     except Exception as error:
         if not _is_disk_full(error):

@@ -6,18 +6,24 @@ string) is logged beside the agent's, both starting at time 0 on the shared ``ti
 
 Three ways out: ``--save`` writes an ``.rrd`` file, ``--web`` serves rerun's web viewer on localhost until
 Ctrl-C (for a machine without a display, e.g. over ssh with a forwarded port), and by default the native viewer
-is spawned, which needs a display: without one the command stops at once and says so.
+is spawned, which needs a display: without one, or with one that does not answer (a stale ssh X forwarding), the
+command stops within seconds and says so.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import socket
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 from urllib.parse import quote
 
 import numpy as np
@@ -41,8 +47,8 @@ class WebPorts:
 
 
 def has_display() -> bool:
-    """Whether rerun's native viewer can open a window. Only Linux is checked: without X11 or Wayland the
-    spawned viewer cannot start, and the command used to wait for it forever."""
+    """Whether a display is named for rerun's native viewer to open a window on (Linux only: X11 or Wayland).
+    Whether it answers shows only when the viewer starts: :func:`start_viewer`."""
     if not sys.platform.startswith("linux"):
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -50,6 +56,78 @@ def has_display() -> bool:
 
 SERVE_FLUSH_TIMEOUT_S = 60.0
 """How long ``--web`` waits for rerun's gRPC server to take the logged episode before it gives up with one line."""
+
+VIEWER_PORT = 9876
+"""rerun's default viewer port: a viewer the user already has open there gets the episode."""
+VIEWER_START_TIMEOUT_S = 10.0
+"""How long a spawned viewer may take to listen on its port. One that cannot open its window usually exits at
+once, which is noticed at once; one stuck on a display that never answers is killed after this."""
+VIEWER_FLUSH_TIMEOUT_S = 60.0
+"""How long the viewer may take to receive the logged episode before the command gives up with one line."""
+NO_WINDOW_ADVICE = "add --save episode.rrd to write a file, or --web to serve rerun's web viewer on localhost"
+
+
+def start_viewer(port: int = VIEWER_PORT, timeout_s: float = VIEWER_START_TIMEOUT_S) -> None:
+    """Make sure a rerun viewer listens on ``port``: the one already there, or a new one, detached so that it
+    outlives the command. A new one that exits, or does not listen within ``timeout_s`` (then it is killed),
+    raises a one-line ValueError that names ``--save`` and ``--web``: logging to it would wait forever."""
+    if _port_answers(port):
+        return
+    executable = _viewer_executable()
+    # The viewer's own output goes to a file without a name (it keeps it open while it runs); only the reason a
+    # failed start gives is shown, in the command's one error line.
+    with tempfile.TemporaryFile() as log:
+        viewer = subprocess.Popen(
+            [executable, f"--port={port}", "--memory-limit=75%", "--expect-data-soon"],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=log, env={**os.environ, "RERUN_APP_ONLY": "true"},
+            start_new_session=True,  # Ctrl-C in the terminal and the command's exit leave the window open
+        )
+        deadline = time.monotonic() + timeout_s
+        while not _port_answers(port):
+            if viewer.poll() is not None:
+                raise ValueError(
+                    f"rerun's viewer cannot open a window on {_display()} ({_last_words(log, viewer.returncode)}): {NO_WINDOW_ADVICE}"
+                )
+            if time.monotonic() > deadline:
+                viewer.kill()
+                viewer.wait()
+                raise ValueError(
+                    f"rerun's viewer did not start within {timeout_s:g} s on {_display()} (does the display answer?): {NO_WINDOW_ADVICE}"
+                )
+            time.sleep(0.1)
+
+
+def _port_answers(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def _viewer_executable() -> str:
+    """The viewer binary shipped with the rerun SDK in use (same version as the SDK), else ``rerun`` on PATH."""
+    import rerun_cli
+
+    bundled = Path(rerun_cli.__file__).parent / "rerun"
+    found = str(bundled) if bundled.is_file() else shutil.which("rerun")
+    if found is None:
+        raise ValueError(f"rerun's viewer is not installed (reinstall rerun-sdk): {NO_WINDOW_ADVICE}")
+    return found
+
+
+def _display() -> str:
+    names = [f"{name}={os.environ[name]}" for name in ("DISPLAY", "WAYLAND_DISPLAY") if os.environ.get(name)]
+    return " and ".join(names) or "this machine"
+
+
+def _last_words(log: BinaryIO, status: int) -> str:
+    """The reason in the viewer's last line (``Error: ...: Failed to open connection to X server``), or its status."""
+    log.seek(0)
+    text = re.sub(r"\x1b\[[0-9;]*m", "", log.read().decode(errors="replace"))  # its log lines are coloured
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    reason = lines[-1].rsplit(": ", 1)[-1] if lines else ""
+    return reason if reason else f"it exited with status {status}"
 
 
 def check_port_free(port: int, option: str) -> None:
@@ -127,7 +205,7 @@ def view_episode(
             recording.disconnect()
             raise ValueError(
                 f"rerun's server on --grpc-port {web.grpc} did not take the recording within "
-                f"{SERVE_FLUSH_TIMEOUT_S:.0f} s ({str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__}): "
+                f"{SERVE_FLUSH_TIMEOUT_S:.0f} s ({_first_line(error)}): "
                 "choose other ports with --web-port/--grpc-port, or write a file with --save"
             ) from None
         announce(f"{shown_what} served at {web.url()} (open it in a browser; Ctrl-C to stop)")
@@ -140,10 +218,20 @@ def view_episode(
         # right after this returns, so there is nothing left to send. Disconnecting tears rerun's servers down
         # one by one; on loaded CI machines the exit after Ctrl-C has taken minutes, and this is one step less.
         return "stopped serving"
-    recording.spawn(default_blueprint=blueprint)
+    start_viewer()
+    recording.connect_grpc(f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy", default_blueprint=blueprint)
     log_all(recording)
-    recording.flush()
+    try:  # a viewer that dies while receiving must not leave the command waiting
+        recording.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
+    except Exception as error:  # rerun raises a plain RuntimeError (or its own error type) on the timeout
+        recording.disconnect()
+        raise ValueError(f"rerun's viewer did not take the recording within {VIEWER_FLUSH_TIMEOUT_S:.0f} s ({_first_line(error)}): {NO_WINDOW_ADVICE}") from None
     return f"{shown_what} sent to the rerun viewer"
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
 
 
 def _sidecar(root: Path) -> dict:

@@ -77,6 +77,7 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
     """Collect the shard's successful episodes and commit it; returns what was written."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    from mosaic_data.atomic_files import give_plain_modes
     from mosaic_data.collection.episode_saving import skip_needless_image_embedding
     from mosaic_data.collection.metadata import write_json_atomically
     from mosaic_data.rollout import run_expert_episode
@@ -144,6 +145,7 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
         dataset.finalize()
         write_s += time.perf_counter() - started
         write_json_atomically(temporary / "meta" / SHARD_RECORD_NAME, {"shard": spec.name, "episodes": records})
+        give_plain_modes(temporary)  # LeRobot joins a shard's episode videos through tempfile: mode 0600
         if parent_pid is not None and os.getppid() != parent_pid:
             raise SystemExit("parent process is gone; not committing the shard")
         try:

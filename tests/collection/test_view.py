@@ -43,6 +43,58 @@ def test_view_without_a_display_stops_at_once_and_names_save_and_web(door_output
     assert time.monotonic() - start < 60
 
 
+RERUN_VIEWER_PORT = 9876
+"""Where the viewer is spawned (rerun's default): one already listening there would get the episode."""
+
+
+def _x_server_answers(display: int) -> bool:
+    """Whether an X server listens on ``:display`` (its Unix socket, or TCP port 6000 + display)."""
+    unix = f"/tmp/.X11-unix/X{display}"
+    for family, address in ((socket.AF_UNIX, unix), (socket.AF_INET, ("127.0.0.1", 6000 + display))):
+        if family == socket.AF_UNIX and not os.path.exists(unix):
+            continue
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.settimeout(1)
+            if probe.connect_ex(address) == 0:
+                return True
+    return False
+
+
+def test_view_with_a_display_that_does_not_answer_stops_and_names_save_and_web(door_output):
+    # A stale ssh X forwarding: DISPLAY is set, no X server answers; rerun's viewer exits and nothing listens.
+    display = 97
+    if _x_server_answers(display):
+        pytest.skip(f"an X server answers on :{display}")
+    with socket.socket() as probe:
+        if probe.connect_ex(("127.0.0.1", RERUN_VIEWER_PORT)) == 0:
+            pytest.skip(f"a rerun viewer (or something else) listens on port {RERUN_VIEWER_PORT}: the episode would go there")
+    env = {**_without_display(), "DISPLAY": f":{display}"}
+    start = time.monotonic()
+    try:
+        result = subprocess.run(_view_command(door_output), env=env, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("mosaic-data view waited for a viewer that cannot open a window")
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("mosaic-data: error:")]
+    assert len(errors) == 1 and f"DISPLAY=:{display}" in errors[0] and "--save" in errors[0] and "--web" in errors[0], result.stderr
+    assert time.monotonic() - start < 60
+
+
+def test_a_viewer_that_never_listens_is_killed_after_the_timeout(tmp_path, monkeypatch):
+    from mosaic_data.collection import view
+
+    pid_file = tmp_path / "viewer.pid"
+    hanging = tmp_path / "hanging_viewer"
+    hanging.write_text(f"#!/bin/sh\necho $$ > {pid_file}\nexec sleep 60\n")
+    hanging.chmod(0o755)
+    monkeypatch.setattr(view, "_viewer_executable", lambda: str(hanging))
+    with pytest.raises(ValueError, match=r"viewer did not start within 1 s .*--save .*--web"):
+        view.start_viewer(port=_free_port(), timeout_s=1)
+    with pytest.raises(ProcessLookupError):
+        os.kill(int(pid_file.read_text()), 0)
+
+
 def test_view_web_serves_rerun_web_viewer_until_interrupted(door_output, tmp_path):
     web_port, grpc_port = _free_port(), _free_port()
     while grpc_port == web_port:  # the kernel may hand the same free port out twice in a row
