@@ -1,6 +1,11 @@
 """Does a policy learn to do what ONE demonstration shows? Collect, train, evaluate one-shot, in one command.
 
     python -m pipelines.bench.policy_learning --task door --preset cpu --output DIR
+    python -m pipelines.bench.policy_learning --task door --preset quick --output DIR   # the learning check
+
+`quick` tries an idea in about 15 minutes on 2 cores: two variations (2,3: on door the right door, pushed and
+pulled), 20 episodes each per robot, 500 training steps, one checkpoint evaluated on 10 held-out instances per
+variation. Compare two settings on one dataset with `--data-dir` shared between their runs.
 
 Every stage is the tool a user runs by hand, as a subprocess, so the figures are those of the shipped commands:
 
@@ -31,8 +36,9 @@ from pathlib import Path
 
 @dataclass(frozen=True)
 class Preset:
-    """Sizes of one learning run. `cpu` is about 2 hours of MOSAIC training on 2 CPU cores (2-2.5 s per step);
-    `paper` is the paper's."""
+    """Sizes of one learning run. `cpu` is about 50 minutes of MOSAIC training on 2 CPU cores with the small conv
+    trunk (lerobot-train's updt_s 1.0-1.1 s per step; `--vision-backbone resnet18`: 2-2.5 s per step, about 2
+    hours); `quick` a learning check of about 12 minutes in all; `paper` is the paper's sizes."""
 
     image_size: str = "48x88"
     episodes: int = 40  # per variation and robot
@@ -42,6 +48,8 @@ class Preset:
     save_every: int = 900
     eval_episodes: int = 10  # per variation and checkpoint
     eval_max_steps: int | None = None  # cap on an evaluation episode (None: the task's horizon)
+    vision_backbone: str = "conv"  # --policy.vision_backbone: the small CPU trunk; "resnet18" is the paper's
+    variations: str | None = None  # collected, trained on and evaluated (None: every variation of the task)
     policy_options: tuple[str, ...] = field(default_factory=tuple)
 
 
@@ -51,8 +59,12 @@ POLICY_CHOICES = ("mosaic", "tosil", "lstm_osil", "mlp_osil", "daml")
 PRESETS: dict[str, Preset] = {
     "cpu": Preset(),
     "paper": Preset(
-        image_size="100x180", episodes=100, steps=40_000, batch_size=30, train_obs_frames=7, save_every=10_000
+        image_size="100x180", episodes=100, steps=40_000, batch_size=30, train_obs_frames=7, save_every=10_000,
+        vision_backbone="resnet18",
     ),
+    # the quick learning check: about 15 minutes on 2 cores with `--variations` naming two (default 2,3 for
+    # door, the right door pushed and pulled); one checkpoint, evaluated on 10 held-out instances per variation
+    "quick": Preset(episodes=20, steps=500, save_every=500, eval_episodes=10, variations="2,3"),
     # the whole pipeline in about two minutes (a test): nothing is learned
     "smoke": Preset(
         image_size="32x56", episodes=2, steps=4, batch_size=4, train_obs_frames=2, save_every=2, eval_episodes=1,
@@ -70,7 +82,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[
     parser.add_argument("--task", default="door", help="task (see `mosaic-data tasks`)")
     parser.add_argument("--policy-type", default="mosaic", choices=POLICY_CHOICES,
                         help="policy to train: MOSAIC or one of the paper's baselines (default mosaic)")
-    parser.add_argument("--variations", default=None, help="e.g. 0,2 (default: every variation)")
+    parser.add_argument("--variations", default=None,
+                        help="e.g. 0,2 (default: the preset's: 2,3 for quick, else every variation)")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     parser.add_argument("--output", type=Path, required=True, help="folder for data, checkpoints and results")
     parser.add_argument("--data-dir", type=Path, default=None,
@@ -78,6 +91,12 @@ def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[
     for name, kind in (("image-size", str), ("episodes", int), ("steps", int), ("batch-size", int),
                        ("train-obs-frames", int), ("save-every", int), ("eval-episodes", int)):
         parser.add_argument(f"--{name}", type=kind, default=None, help="overrides the preset")
+    parser.add_argument("--vision-backbone", choices=("resnet18", "conv"), default=None,
+                        help="vision trunk (--policy.vision_backbone), overrides the preset: resnet18 (the paper's) or "
+                             "conv (small, for CPU; the cpu and smoke presets' choice)")
+    parser.add_argument("--action-noise", default=None, metavar="POS_STD_M[,ROT_STD_RAD]",
+                        help="collect with DART-style noise injection (mosaic-data collect --action-noise); give it "
+                             "its own --data-dir, since the datasets differ")
     parser.add_argument("--workers", type=int, default=2, help="collection and evaluation processes")
     parser.add_argument("--seed", type=int, default=1000, help="training seed")
     parser.add_argument("--eval-only", action="store_true", help="evaluate the checkpoints already in DIR/train")
@@ -92,7 +111,8 @@ def resolve_preset(args: argparse.Namespace, extra: list[str]) -> Preset:
     preset = PRESETS[args.preset]
     overrides = {
         key: getattr(args, key)
-        for key in ("image_size", "episodes", "steps", "batch_size", "train_obs_frames", "save_every", "eval_episodes")
+        for key in ("image_size", "episodes", "steps", "batch_size", "train_obs_frames", "save_every", "eval_episodes",
+                    "vision_backbone", "variations")
         if getattr(args, key) is not None
     }
     return replace(preset, **overrides, policy_options=tuple(extra))
@@ -126,8 +146,10 @@ def _run(command: list[str], log: Path) -> float:
 def collect(args: argparse.Namespace, preset: Preset, data_dir: Path) -> float:
     command = [_bin("mosaic-data"), "collect", "--task", args.task, "--robot", "both", "--episodes", str(preset.episodes),
                "--image-size", preset.image_size, "--workers", str(args.workers), "--output-dir", str(data_dir), "--quiet"]
-    if args.variations:
-        command += ["--variations", args.variations]
+    if preset.variations:
+        command += ["--variations", preset.variations]
+    if args.action_noise:
+        command += ["--action-noise", args.action_noise]
     return _run(command, args.output / "collect.log")
 
 
@@ -141,6 +163,7 @@ def train(args: argparse.Namespace, preset: Preset, data_dir: Path, train_dir: P
         f"--policy.demo_repo_id={demo}",
         f"--policy.demo_root={data_dir / demo}",
         f"--policy.train_obs_frames={preset.train_obs_frames}",
+        f"--policy.vision_backbone={preset.vision_backbone}",
         "--policy.push_to_hub=false",
         "--policy.device=cpu",
         f"--batch_size={preset.batch_size}",
@@ -169,8 +192,8 @@ def evaluate(args: argparse.Namespace, preset: Preset, checkpoint: Path, out: Pa
     command = [_bin("mosaic-eval"), f"--policy.path={checkpoint}", "--task", args.task,
                "--episodes-per-variation", str(preset.eval_episodes), "--workers", str(args.workers),
                "--output", str(out / "results.json"), "--quiet"]
-    if args.variations:
-        command += ["--variations", args.variations]
+    if preset.variations:
+        command += ["--variations", preset.variations]
     if preset.eval_max_steps:
         command += ["--max-steps", str(preset.eval_max_steps)]
     seconds = _run(command, out / "eval.log")
@@ -183,6 +206,8 @@ def summarise(results: dict, task: str) -> dict:
     task_row = next(row for row in table["per_task"] if row["task"] == task)
     return {
         "success": task_row["mean"],
+        "episodes": task_row["instances"],
+        "ci95": [task_row["ci95_low"], task_row["ci95_high"]],
         "per_variation": {str(row["variation"]): row["mean"] for row in table["per_variation"] if row["task"] == task},
         "wrong_variation_share": task_row["confusion"]["wrong_variation_share"],
         "confusion": task_row["confusion"],
@@ -230,7 +255,9 @@ def main(argv: list[str] | None = None) -> int:
         seconds["evaluate"] += eval_seconds
         point = {"step": step, **summarise(results, args.task)}
         curve.append(point)
-        print(f"  step {step}: one-shot success {100 * point['success']:.0f}%, wrong variation "
+        low, high = point["ci95"]
+        print(f"  step {step}: one-shot success {100 * point['success']:.0f}% [95% interval {100 * low:.0f}-"
+              f"{100 * high:.0f}%, {point['episodes']} episodes], wrong variation "
               f"{100 * (point['wrong_variation_share'] or 0):.0f}%, per variation "
               + ", ".join(f"{k}: {100 * v:.0f}%" for k, v in point["per_variation"].items()), flush=True)
     plot_learning_curve(
@@ -239,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = {
         "task": args.task,
         "policy_type": args.policy_type,
-        "variations": args.variations or "all",
+        "variations": preset.variations or "all",
         "preset": args.preset,
         "settings": asdict(preset),
         "seconds": seconds,
