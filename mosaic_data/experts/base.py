@@ -201,6 +201,10 @@ FINGERS_CLOSING_M = 0.15
 FINGERS_STILL = 0.01
 """... and changed less than this in the last control step."""
 GRASP_MIN_STEPS, GRASP_MAX_STEPS = 3, 14
+ALIGNED_M = 0.01
+AT_GRASP_M = 0.006
+"""The hand goes on down once the arm is this close to the point over the object, and starts closing once it is
+this close to the grasp point (the command is already there)."""
 
 
 class GraspingExpert(ScriptedExpert):
@@ -208,6 +212,34 @@ class GraspingExpert(ScriptedExpert):
 
     carrying_phases: tuple[str, ...] = ("carry",)
     max_retries: int = 2
+
+    def reach_phases(
+        self,
+        over: Callable[[float], Callable[[], np.ndarray]],
+        grasp: Callable[[], np.ndarray],
+        approach_height_m: float,
+        hover_height_m: float,
+    ) -> list[Phase]:
+        """Approach (paced) to ``over(approach_height_m)``, align at ``over(hover_height_m)``, descend to ``grasp``.
+
+        Each ends when its command arrives (align and descend: once the arm is within ``ALIGNED_M`` and
+        ``AT_GRASP_M`` too), so the hand keeps moving; the slow align and descent keep a fast arm from overshooting
+        down onto the object. ``over(height)`` is the target above the object at that height."""
+        approach, hover = over(approach_height_m), over(hover_height_m)
+        return [
+            Phase(
+                "approach", approach, GRIPPER_OPEN, tolerance_m=0.0, done=self.command_arrived(approach), max_steps=60,
+                paced=True,
+            ),
+            Phase(
+                "align", hover, GRIPPER_OPEN, tolerance_m=0.0, done=self.command_arrived(hover, arm_within_m=ALIGNED_M),
+                max_steps=30, max_step_m=0.006,
+            ),
+            Phase(
+                "descend", grasp, GRIPPER_OPEN, tolerance_m=0.0, done=self.command_arrived(grasp, arm_within_m=AT_GRASP_M),
+                max_steps=30, max_step_m=0.005,
+            ),
+        ]
 
     def grasp_phase(self, name: str, target: Callable[[], np.ndarray], **options) -> Phase:
         """Close the fingers at ``target`` and end as soon as they have closed on the object: the hand holds

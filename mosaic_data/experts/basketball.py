@@ -14,10 +14,6 @@ from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExper
 from mosaic_data.tasks.basketball import BALL_RADIUS_M, Basketball
 
 APPROACH_HEIGHT_M = 0.10
-ALIGNED_M = 0.01
-AT_GRASP_M = 0.006
-"""The hand goes on down once the arm is this close to the point over the object, and starts closing once it is
-this close to the grasp point (the command is already there)."""
 """Above the ball, where the fast approach ends."""
 HOVER_HEIGHT_M = 0.04
 """Above the ball, where the hand settles before the slow descent."""
@@ -109,21 +105,7 @@ class BasketballExpert(GraspingExpert):
 
         retreat = np.array([rim[0], rim[1], carry_z + 0.06])
         return [
-            Phase(
-                "approach", over_ball(APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.0,
-                done=self.command_arrived(over_ball(APPROACH_HEIGHT_M)), max_steps=60, paced=True,
-            ),
-            # Settle close above the ball, then go down slowly: a fast descent leaves the arm overshooting.
-            Phase(
-                "align", over_ball(HOVER_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.0,
-                done=self.command_arrived(over_ball(HOVER_HEIGHT_M), arm_within_m=ALIGNED_M), max_steps=30, max_step_m=0.006,
-            ),
-            # The fingers start closing once the command is at the grasp point and the arm nearly there: they take
-            # a few steps to reach the object, in which the arm settles.
-            Phase(
-                "descend", grasp, GRIPPER_OPEN, tolerance_m=0.0, done=self.command_arrived(grasp, arm_within_m=AT_GRASP_M),
-                max_steps=30, max_step_m=0.005,
-            ),
+            *self.reach_phases(over_ball, grasp, APPROACH_HEIGHT_M, HOVER_HEIGHT_M),
             self.grasp_phase("close", grasped_at),
             Phase("lift", lifted, GRIPPER_CLOSED, tolerance_m=0.015, max_steps=40),
             Phase("carry", over_rim, GRIPPER_CLOSED, tolerance_m=0.0, done=near(SLOW_DOWN_M), max_steps=60),

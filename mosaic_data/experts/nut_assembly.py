@@ -16,10 +16,6 @@ from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExper
 from mosaic_data.tasks.nut_assembly import NUT_HALF_THICKNESS_M, PEG_HEIGHT_M, NutAssembly
 
 APPROACH_HEIGHT_M = 0.10
-ALIGNED_M = 0.01
-AT_GRASP_M = 0.006
-"""The hand goes on down once the arm is this close to the point over the object, and starts closing once it is
-this close to the grasp point (the command is already there)."""
 """Above the handle, where the fast approach ends."""
 HOVER_HEIGHT_M = 0.04
 """Above the handle, where the hand settles before the slow descent."""
@@ -155,22 +151,7 @@ class NutAssemblyExpert(GraspingExpert):
 
         retreat = np.array([axis[0], axis[1], peg_top + 0.08])
         return [
-            Phase(
-                "approach", over_handle(APPROACH_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.0,
-                done=self.command_arrived(over_handle(APPROACH_HEIGHT_M)), max_steps=60, paced=True,
-            ),
-            # Settle close above the handle, then go down slowly: a fast descent leaves the arm overshooting
-            # downwards, and fingertips dragging on the table do not close.
-            Phase(
-                "align", over_handle(HOVER_HEIGHT_M), GRIPPER_OPEN, tolerance_m=0.0,
-                done=self.command_arrived(over_handle(HOVER_HEIGHT_M), arm_within_m=ALIGNED_M), max_steps=30, max_step_m=0.006,
-            ),
-            # The fingers start closing once the command is at the grasp point and the arm nearly there: they take
-            # a few steps to reach the object, in which the arm settles.
-            Phase(
-                "descend", grasp, GRIPPER_OPEN, tolerance_m=0.0, done=self.command_arrived(grasp, arm_within_m=AT_GRASP_M),
-                max_steps=30, max_step_m=0.005,
-            ),
+            *self.reach_phases(over_handle, grasp, APPROACH_HEIGHT_M, HOVER_HEIGHT_M),
             self.grasp_phase("close", grasped_at),
             Phase("lift", lifted, GRIPPER_CLOSED, tolerance_m=0.015, max_steps=40),
             Phase("carry", over_peg, GRIPPER_CLOSED, tolerance_m=0.0, done=near(SLOW_DOWN_M), max_steps=60),

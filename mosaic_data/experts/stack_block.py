@@ -12,16 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaic_data.experts.base import GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
+from mosaic_data.experts.base import ALIGNED_M, AT_GRASP_M, GRIPPER_CLOSED, GRIPPER_OPEN, GraspingExpert, Phase, top_down
 from mosaic_data.tasks.stack_block import CUBE_HALF_SIZE_M, StackBlock
 
 APPROACH_HEIGHT_M = 0.10
-ALIGNED_M = 0.01
-AT_GRASP_M = 0.006
-"""The hand goes on down once the arm is this close to the point over the cube, and starts closing once it is
-this close to the grasp point (the command is already there)."""
-"""Hover height above a grasp or place point before going down."""
 HOVER_HEIGHT_M = 0.06
+"""Hover height above a grasp or place point before going down."""
 """Height above the grasp point where the hand settles before the fingers go down around the cube (the
 Sawyer's fingertips reach 1.4 cm below its grip site, and it overshoots by up to 1.5 cm when it stops)."""
 CARRY_HEIGHT_M = 0.12

@@ -67,13 +67,8 @@ def test_every_policy_learns_a_fixed_batch_and_round_trips_through_from_pretrain
 
     policy.eval().save_pretrained(tmp_path / "ckpt")
     loaded = policy_class(policy_type).from_pretrained(tmp_path / "ckpt").eval()
-    demo = torch.randint(0, 255, (12, HEIGHT, 56, 3), dtype=torch.uint8)
-    frame = {IMAGE_KEY: torch.rand(2, 3, HEIGHT, 56), "observation.state": torch.randn(2, 10)}
-    chunks = []
+    chunks, frame = _chunks_after_one_demo(policy, loaded)
     for model in (policy, loaded):
-        model.reset()
-        model.set_demo(demo)
-        chunks.append(model.predict_action_chunk(frame))
         assert model.select_action(frame).shape == (2, 7)
     assert chunks[0].shape == (2, config.action_chunk, 7)
     torch.testing.assert_close(chunks[0], chunks[1])
@@ -242,15 +237,22 @@ def test_every_policy_trains_acts_and_round_trips_with_the_conv_trunk(policy_typ
     assert loaded.config.vision_backbone == "conv" and isinstance(loaded.model.trunk, ConvTrunk)
     original, reloaded = policy.state_dict(), loaded.state_dict()
     assert original.keys() == reloaded.keys() and all(torch.equal(original[k], reloaded[k]) for k in original)
+    chunks, _ = _chunks_after_one_demo(policy, loaded)
+    for model in (policy, loaded):
+        assert isinstance(model.trunk_for_inference(), ConvTrunk) and model.trunk_for_inference() is not model.model.trunk
+    torch.testing.assert_close(chunks[0], chunks[1])
+
+
+def _chunks_after_one_demo(*policies) -> tuple[list[torch.Tensor], dict]:
+    """Each policy reset, shown the same random demonstration, then asked for a chunk on the same frame."""
     demo = torch.randint(0, 255, (12, HEIGHT, 56, 3), dtype=torch.uint8)
     frame = {IMAGE_KEY: torch.rand(2, 3, HEIGHT, 56), "observation.state": torch.randn(2, 10)}
     chunks = []
-    for model in (policy, loaded):
+    for model in policies:
         model.reset()
         model.set_demo(demo)
-        assert isinstance(model.trunk_for_inference(), ConvTrunk) and model.trunk_for_inference() is not model.model.trunk
         chunks.append(model.predict_action_chunk(frame))
-    torch.testing.assert_close(chunks[0], chunks[1])
+    return chunks, frame
 
 
 def test_the_comparison_benchmark_prints_every_policy_as_a_ratio_to_mosaic(tmp_path, capsys):
