@@ -99,6 +99,17 @@ def action_noise(text: str):
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def ray_address_problem(executor: str, ray_address: str | None) -> str | None:
+    """Why ``--ray-address`` does not fit ``--executor`` (one line naming the fix), or None; both commands check it."""
+    if ray_address is None:
+        return None
+    if executor != "ray":
+        return "--ray-address needs --executor ray"
+    if not ray_address.strip():
+        return "--ray-address is empty: give the cluster's address, e.g. 'auto' or 'head-node:6379', or leave it out"
+    return None
+
+
 def add_executor_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     """``--executor`` and ``--ray-address``, shared by ``mosaic-data collect`` and ``mosaic-eval``."""
     parser.add_argument(

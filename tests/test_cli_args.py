@@ -65,8 +65,8 @@ def test_good_values_parse():
 @pytest.mark.parametrize("command", ["collect", "mosaic-eval"])
 @pytest.mark.parametrize("size", ["10000x10000", "100x9000", "8193x16"])
 def test_image_sizes_beyond_the_renderer_are_refused_up_front(command, size, capsys):
-    """Before the fix: collect failed 30 s into its first shard ("Offscreen framebuffer is not complete"), leaving a
-    .collecting folder behind, and mosaic-eval printed a traceback."""
+    """A frame larger than the offscreen renderer holds is refused in one line by both commands, before any shard
+    starts: nothing is left behind and no traceback is printed."""
     message = _refusal(command, ["--image-size", size], capsys)
     assert message == (
         f"argument --image-size: images must be at most {MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE} (the largest frame the "

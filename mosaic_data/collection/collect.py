@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.action_noise import ActionNoise
+from mosaic_data.cli_args import ray_address_problem
 from mosaic_data.collection import CollectionError
 from mosaic_data.collection.merge import aggregate_into, check_replaceable, merge_datasets, remove_stale_work
 from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
@@ -115,10 +116,8 @@ def plan_jobs(request: CollectRequest) -> list[DatasetJob]:
         raise ValueError(f"--episodes must be between 1 and {MAX_EPISODES}, got {request.episodes}")
     if request.executor not in EXECUTORS:
         raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {request.executor!r}")
-    if request.ray_address is not None and request.executor != "ray":
-        raise ValueError("--ray-address needs --executor ray")
-    if request.ray_address is not None and not request.ray_address.strip():
-        raise ValueError("--ray-address is empty: give the cluster's address, e.g. 'auto' or 'head-node:6379', or leave it out")
+    if (problem := ray_address_problem(request.executor, request.ray_address)) is not None:
+        raise ValueError(problem)
     if request.workers is not None and request.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {request.workers}")
     if request.seed < 0:

@@ -22,16 +22,15 @@ def check_arguments(args: argparse.Namespace) -> dict[str, list[int]]:
     """Task -> variations of ``--task`` and ``--variations``, after the checks that need no checkpoint: task names,
     variations, what to evaluate and the executor's options. Plain data only (the suite's table), so a typo is
     reported before torch, LeRobot or the simulator load, which takes seconds."""
+    from mosaic_data.cli_args import ray_address_problem
     from mosaic_data.tasks import select_variations  # the table only, not the simulator
 
     try:
         tasks = select_variations(args.task, args.variations)
     except ValueError as error:
         raise EvaluationError(str(error)) from None
-    if args.ray_address is not None and args.executor != "ray":
-        raise EvaluationError("--ray-address needs --executor ray")
-    if args.ray_address is not None and not args.ray_address.strip():
-        raise EvaluationError("--ray-address is empty: give the cluster's address, e.g. 'auto' or 'head-node:6379', or leave it out")
+    if (problem := ray_address_problem(args.executor, args.ray_address)) is not None:
+        raise EvaluationError(problem)
     if not args.policy_paths and not args.baseline:
         raise EvaluationError("nothing to evaluate: pass --policy.path=<checkpoint> and/or --baseline expert|untrained")
     return tasks
