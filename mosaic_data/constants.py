@@ -26,6 +26,17 @@ ACTION_DIM = 7
 N_DEMO_FRAMES = 4
 """Frames of the demonstration a policy conditions on: first, last, one from each middle segment."""
 
+POLICY_TYPES: dict[str, str] = {
+    "mosaic": "MOSAIC",
+    "tosil": "T-OSIL",
+    "lstm_osil": "LSTM",
+    "mlp_osil": "MLP",
+    "daml": "DAML",
+}
+"""Every policy type of ``mosaic_policy`` (``--policy.type``) -> the name of its row in the paper's Table I, in
+Table I's column order. Here rather than in ``mosaic_policy`` so that command lines list the types without
+importing torch; ``import mosaic_policy`` registers exactly these."""
+
 # --- seeds -----------------------------------------------------------------------------------------------
 # `mosaic-data collect` seeds training instances from 0 up; evaluation uses instances from EVAL_BASE_SEED.
 # Evaluation episode e of variation v, from base seed B (mosaic-eval's --seed, lerobot-eval's --seed):

@@ -1,4 +1,5 @@
-"""Demonstration-conditioned policies for LeRobot: importing this package registers every policy type.
+"""Demonstration-conditioned policies for LeRobot: importing this package registers every policy type
+(`POLICY_TYPES`, defined torch-free in `mosaic_data.constants`).
 
 One folder per policy, as LeRobot does (`configuration_X.py`, `modeling_X.py`, `processor_X.py`):
 
@@ -14,22 +15,13 @@ interface (`set_demo`, `select_action`). Only the configurations load here; LeRo
 policy's modeling module when it builds one.
 """
 
-import importlib
+from mosaic_data.constants import POLICY_TYPES
 
 from .daml.configuration_daml import DamlConfig
 from .lstm_osil.configuration_lstm_osil import LstmOsilConfig
 from .mlp_osil.configuration_mlp_osil import MlpOsilConfig
 from .mosaic.configuration_mosaic import MosaicConfig
 from .tosil.configuration_tosil import TosilConfig
-
-POLICY_TYPES: dict[str, str] = {
-    "mosaic": "MOSAIC",
-    "tosil": "T-OSIL",
-    "lstm_osil": "LSTM",
-    "mlp_osil": "MLP",
-    "daml": "DAML",
-}
-"""Policy type -> the name of its row in the paper's Table I."""
 
 __all__ = [
     "POLICY_TYPES",
@@ -45,10 +37,13 @@ __all__ = [
 
 
 def policy_class(policy_type: str) -> type:
-    """The policy class of a type of this package (its modeling module is imported now)."""
-    module = importlib.import_module(f"{__name__}.{policy_type}.modeling_{policy_type}")
-    config_name = {"mosaic": "Mosaic", "tosil": "Tosil", "lstm_osil": "LstmOsil", "mlp_osil": "MlpOsil", "daml": "Daml"}
-    return getattr(module, f"{config_name[policy_type]}Policy")
+    """The policy class of a type of this package, found as LeRobot's factory finds it (its modeling module is
+    imported now)."""
+    from lerobot.policies.factory import get_policy_class
+
+    if policy_type not in POLICY_TYPES:
+        raise ValueError(f"unknown policy type {policy_type!r}: choose from {', '.join(POLICY_TYPES)}")
+    return get_policy_class(policy_type)
 
 
 def __getattr__(name):  # the model and processor modules load lazily, as LeRobot's factory does

@@ -33,6 +33,8 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+from mosaic_data.constants import POLICY_TYPES
+
 
 @dataclass(frozen=True)
 class Preset:
@@ -52,9 +54,6 @@ class Preset:
     variations: str | None = None  # collected, trained on and evaluated (None: every variation of the task)
     policy_options: tuple[str, ...] = field(default_factory=tuple)
 
-
-POLICY_CHOICES = ("mosaic", "tosil", "lstm_osil", "mlp_osil", "daml")
-"""The policy types of the paper's Table I (mosaic_policy.POLICY_TYPES; listed here so --help imports no torch)."""
 
 PRESETS: dict[str, Preset] = {
     "cpu": Preset(),
@@ -80,7 +79,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--task", default="door", help="task (see `mosaic-data tasks`)")
-    parser.add_argument("--policy-type", default="mosaic", choices=POLICY_CHOICES,
+    parser.add_argument("--policy-type", default="mosaic", choices=list(POLICY_TYPES),
                         help="policy to train: MOSAIC or one of the paper's baselines (default mosaic)")
     parser.add_argument("--variations", default=None,
                         help="e.g. 0,2 (default: the preset's: 2,3 for quick, else every variation)")

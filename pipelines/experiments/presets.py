@@ -10,10 +10,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
+from mosaic_data.constants import POLICY_TYPES
 from mosaic_data.tasks.spec import TASK_NAMES
 
-POLICY_TYPES = ("mosaic", "tosil", "lstm_osil", "mlp_osil", "daml")
-"""MOSAIC and the paper's baselines, in Table I's column order (mosaic_policy.POLICY_TYPES, without torch)."""
 VISION_BACKBONES = ("resnet18", "conv")
 """Values of --policy.vision_backbone (mosaic_policy.common.configuration_demo.VISION_BACKBONES, without torch)."""
 
@@ -37,7 +36,7 @@ class ExperimentPreset:
     eval_episodes: int = 10  # per variation and checkpoint
     eval_max_steps: int = 0  # cap on an evaluation episode (0: the task's horizon)
     seeds: int = 3  # training seeds per cell
-    methods: tuple[str, ...] = POLICY_TYPES  # Table I's columns
+    methods: tuple[str, ...] = tuple(POLICY_TYPES)  # Table I's columns, in order
     single_task_tasks: tuple[str, ...] = TASK_NAMES
     multi_task_tasks: tuple[str, ...] = TASK_NAMES
     novel_task_pool: tuple[str, ...] = TASK_NAMES  # a novel-task model trains on this pool minus the held-out task

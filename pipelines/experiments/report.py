@@ -23,6 +23,7 @@ import numpy as np
 
 from mosaic_data.atomic_files import write_bytes_atomically
 from mosaic_data.collection.metadata import write_json_atomically
+from mosaic_data.constants import POLICY_TYPES
 from pipelines.evaluation.intervals import interval_text, rate_interval
 
 from .paper_results import SOURCES, paper_number
@@ -36,7 +37,6 @@ TABLE_TITLES = {
     "fine-tune": "Table II, Fine-tune: the novel-task model fine-tuned on all of the held-out task's data",
     "ablations": "Appendix ablations: MOSAIC with one option changed",
 }
-METHOD_NAMES = {"mosaic": "MOSAIC", "tosil": "T-OSIL", "lstm_osil": "LSTM", "mlp_osil": "MLP", "daml": "DAML"}
 
 
 @dataclass
@@ -178,7 +178,7 @@ def _row_name(table: str, row: str) -> str:
     if table == "ablations":
         group, _ = ABLATIONS[row]
         return f"{row} ({group})"
-    return METHOD_NAMES.get(row, row)
+    return POLICY_TYPES.get(row, row)
 
 
 def markdown_table(cells: list[CellResult], table: str, fraction: int | None = None, mode: str | None = None) -> str:
@@ -200,7 +200,7 @@ def fraction_table(cells: list[CellResult]) -> str:
     by_key = {(c.row, c.mode, c.fraction, c.task): c for c in chosen}
     lines = ["| | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
     for row, mode, fraction in rows:
-        name = f"{METHOD_NAMES.get(row, row)}, {'fine-tuned' if mode == 'fine-tune' else 'from scratch'}, {fraction}% data"
+        name = f"{POLICY_TYPES.get(row, row)}, {'fine-tuned' if mode == 'fine-tune' else 'from scratch'}, {fraction}% data"
         lines.append(f"| {name} | " + " | ".join(cell_text(by_key.get((row, mode, fraction, t))) for t in tasks) + " |")
     return "\n".join(lines) + "\n"
 

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import pytest
 
+from mosaic_data.constants import POLICY_TYPES
 from pipelines.experiments.presets import PRESETS
 from pipelines.experiments.recipes import build_plan
 from pipelines.experiments.stages import is_done, stage_folder
 
 EXPERIMENT = [sys.executable, "-m", "pipelines.experiments.cli"]
-METHOD_ROWS = ("MOSAIC", "T-OSIL", "LSTM", "MLP", "DAML")
 
 
 @pytest.fixture(scope="module")
@@ -45,9 +45,9 @@ def test_single_task_smoke_runs_every_method_and_reports_them(smoke_data, tmp_pa
         assert (folder / "log.txt").stat().st_size > 0 and is_done(output, stage)
     summary = json.loads((output / "results.json").read_text())
     cells = summary["recipes"][0]["cells"]
-    assert [c["row"] for c in cells] == ["mosaic", "tosil", "lstm_osil", "mlp_osil", "daml"]
+    assert [c["row"] for c in cells] == list(POLICY_TYPES)
     markdown = (output / "results.md").read_text()
-    for cell, name in zip(cells, METHOD_ROWS):
+    for cell, name in zip(cells, POLICY_TYPES.values()):
         # the table's number is the evaluation's own: read it back from mosaic-eval's results file
         evaluation = next(e for e in plan.evaluations if e.row == cell["row"])
         task_row = json.loads(evaluation.results.read_text())["tables"]

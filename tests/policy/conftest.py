@@ -19,6 +19,8 @@ import torch
 
 from lerobot.configs import FeatureType, PolicyFeature
 
+from mosaic_data import constants
+
 IMAGE_KEY = "observation.images.agentview"
 HEIGHT, WIDTH = 32, 56
 FPS = 20
@@ -93,9 +95,14 @@ SMALL_OPTIONS: dict[str, dict] = {
     "mlp_osil": dict(context_hidden_dim=32, context_dim=16),
     "daml": dict(policy_hidden_dim=32, adapt_loss_channels=8),
 }
-"""Small sizes of each policy type's own options for fast CPU tests."""
+"""Small sizes of each policy type's own options for fast CPU tests (one entry per type of POLICY_TYPES)."""
 
-POLICY_TYPES = list(SMALL_OPTIONS)
+POLICY_TYPES = list(constants.POLICY_TYPES)
+
+
+def small_flags(policy_type: str) -> list[str]:
+    """``small_config``'s own options of ``policy_type`` as lerobot-train flags."""
+    return [f"--policy.{name}={value}" for name, value in SMALL_OPTIONS[policy_type].items()]
 
 
 def small_config(height=HEIGHT, width=WIDTH, policy_type="mosaic", **overrides):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, POLICY_TYPES, random_batch, small_config
+from conftest import HEIGHT, IMAGE_KEY, POLICY_TYPES, random_batch, small_config, small_flags
 
 BIN = Path(sys.executable).parent
 BASELINES = [t for t in POLICY_TYPES if t != "mosaic"]
@@ -19,13 +19,6 @@ OWN_OPTION = {  # an option of each type's own, with its help text
     "lstm_osil": ("--policy.n_lstm_layers", "Stacked LSTM layers"),
     "mlp_osil": ("--policy.n_context_layers", "Hidden layers of the context MLP"),
     "daml": ("--policy.inner_lr", "Initial inner learning rate"),
-}
-SMALL_FLAGS = {
-    "mosaic": ["--policy.n_attention_heads=2", "--policy.contrastive_dim=16", "--policy.contrastive_hidden_dim=32"],
-    "tosil": ["--policy.n_attention_heads=2", "--policy.point_horizon=2"],
-    "lstm_osil": ["--policy.lstm_hidden_dim=32"],
-    "mlp_osil": ["--policy.context_hidden_dim=32", "--policy.context_dim=16"],
-    "daml": ["--policy.policy_hidden_dim=32", "--policy.adapt_loss_channels=8"],
 }
 
 
@@ -101,7 +94,7 @@ def trained_checkpoints(door_datasets, tmp_path_factory):
                 "--policy.embed_dim=32",
                 "--policy.head_hidden_dim=32",
                 "--policy.demo_loader_threads=1",
-                *SMALL_FLAGS[policy_type],
+                *small_flags(policy_type),
             ],
             base,
         )
@@ -164,11 +157,17 @@ def test_lerobot_eval_runs_every_baseline_on_the_mosaic_env(trained_checkpoints,
     assert info["overall"]["n_episodes"] == 1
 
 
-def test_the_learning_benchmark_offers_every_policy_type():
-    from mosaic_policy import POLICY_TYPES
-    from pipelines.bench.policy_learning import POLICY_CHOICES
+def test_importing_the_package_registers_exactly_the_policy_types_with_lerobot():
+    """`import mosaic_policy` (what the plugin does) registers every type of POLICY_TYPES and no other; a type
+    outside it is refused by name."""
+    from lerobot.configs.policies import PreTrainedConfig
 
-    assert list(POLICY_CHOICES) == list(POLICY_TYPES)
+    from mosaic_policy import policy_class
+
+    ours = [t for t in PreTrainedConfig.get_known_choices() if PreTrainedConfig.get_choice_class(t).__module__.startswith("mosaic_policy.")]
+    assert sorted(ours) == sorted(POLICY_TYPES)
+    with pytest.raises(ValueError, match="choose from mosaic, tosil"):
+        policy_class("act")
 
 
 def test_policies_are_models_no_simulator_and_no_command_line():

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import IMAGE_KEY, read_variation_rank, variation_description
+from conftest import IMAGE_KEY, POLICY_TYPES, read_variation_rank, small_flags, variation_description
 from safetensors.torch import load_file
 
 from lerobot.datasets import LeRobotDatasetMetadata
@@ -41,15 +41,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-MOSAIC_SMALL = [
-    "--policy.n_attention_heads=2", "--policy.contrastive_dim=16", "--policy.contrastive_hidden_dim=32",
-]  # fmt: skip
-BASELINE_SMALL = {
-    "tosil": ["--policy.n_attention_layers=2", "--policy.n_attention_heads=2", "--policy.point_horizon=2"],
-    "lstm_osil": ["--policy.lstm_hidden_dim=32"],
-    "mlp_osil": ["--policy.context_hidden_dim=32", "--policy.context_dim=16"],
-    "daml": ["--policy.policy_hidden_dim=32", "--policy.adapt_loss_channels=8"],
-}
+BASELINES = [t for t in POLICY_TYPES if t != "mosaic"]
 
 
 def _launch_two_processes(policy_type: str, options: list[str], door_datasets, base: Path) -> dict:
@@ -96,15 +88,15 @@ def _assert_one_checkpoint_with_the_state_of_every_rank(run: dict) -> None:
 @pytest.fixture(scope="module")
 def two_process_run(door_datasets, tmp_path_factory):
     """One 2-process MOSAIC run (about 20 s on 2 cores), shared by the tests below."""
-    return _launch_two_processes("mosaic", MOSAIC_SMALL, door_datasets, tmp_path_factory.mktemp("two_process"))
+    return _launch_two_processes("mosaic", small_flags("mosaic"), door_datasets, tmp_path_factory.mktemp("two_process"))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("policy_type", list(BASELINE_SMALL))
+@pytest.mark.parametrize("policy_type", BASELINES)
 def test_every_baseline_trains_in_two_processes_to_one_checkpoint_and_identical_ranks(policy_type, door_datasets, tmp_path):
     """The baselines share MOSAIC's multi-process path (about 20 s each on 2 cores; MOSAIC's run covers it)."""
     _assert_one_checkpoint_with_the_state_of_every_rank(
-        _launch_two_processes(policy_type, BASELINE_SMALL[policy_type], door_datasets, tmp_path)
+        _launch_two_processes(policy_type, small_flags(policy_type), door_datasets, tmp_path)
     )
 
 

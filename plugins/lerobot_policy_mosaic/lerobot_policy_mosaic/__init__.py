@@ -1,5 +1,5 @@
 """LeRobot plugin: importing it registers every policy of the mosaic toolkit (`lerobot-train --policy.type=X`
-with X in mosaic, tosil, lstm_osil, mlp_osil, daml)."""
+with X any key of `POLICY_TYPES`)."""
 
 from mosaic_policy import POLICY_TYPES, DamlConfig, LstmOsilConfig, MlpOsilConfig, MosaicConfig, TosilConfig
 
