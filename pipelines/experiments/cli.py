@@ -86,7 +86,9 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
         horizon = TASK_SPECS[task].horizon_steps
         if "--max-steps" in stage.command:
             horizon = min(horizon, int(stage.command[stage.command.index("--max-steps") + 1]))
-        rollout_steps += episodes * len(TASK_SPECS[task].variations) * horizon
+        variations = (len(stage.command[stage.command.index("--variations") + 1].split(","))
+                      if "--variations" in stage.command else len(TASK_SPECS[task].variations))
+        rollout_steps += episodes * variations * horizon
     workers = max(1, preset.workers)
     text = (f"{len(plan.stages)} stages: {len(train)} training runs ({steps} steps in all), "
             f"{len(evaluations)} evaluations (at most {rollout_steps} control steps, about "

@@ -39,6 +39,7 @@ SOURCES = {
     "novel-task": "paper, Table II (Novel-task)",
     "fine-tune": "paper, Table II (Fine-tune)",
     "ablations": "paper, appendix ablation tables",
+    "learning": "paper, Table I (single-task: every variation, the paper's training budget)",
 }
 
 
@@ -53,4 +54,6 @@ def paper_number(table: str, row: str, task: str, fraction: int | None = None, m
         if table == "fine-tune" and mode == "scratch":
             return TABLE_I[("single-task", "mosaic")].get(task)
         return TABLE_II[table].get(task)
+    if table == "learning":  # one method trained on one task: the single-task setup of Table I
+        table = "single-task"
     return TABLE_I.get((table, row), {}).get(task)

@@ -47,6 +47,12 @@ class ExperimentPreset:
     fine_tune_steps: int = 20_000
     fine_tune_save_every: int = 5_000
     ablation_tasks: tuple[str, ...] = ("door",)
+    ablation_variants: tuple[str, ...] = ()  # rows of the ablations recipe (empty: every variant it knows)
+    learning_tasks: tuple[str, ...] = ("door",)
+    learning_methods: tuple[str, ...] = ("mosaic",)
+    variations: tuple[int, ...] = ()  # collected, trained on and evaluated (empty: every variation of each task)
+    action_noise: str = ""  # mosaic-data collect --action-noise POS[,ROT] (DART-style); empty: none
+    train_options: tuple[str, ...] = ()  # more lerobot-train options for every run, space-separated in --set
     workers: int = 2  # collection and evaluation processes (local executor)
     executor: str = "local"  # collection and evaluation on local processes, or "ray" (every CPU of the cluster)
     ray_address: str = ""  # the Ray cluster with executor=ray; empty: Ray on this machine
@@ -67,6 +73,14 @@ PRESETS: dict[str, ExperimentPreset] = {
         novel_task_pool=("door", "drawer", "press_button"), novel_task_tasks=("door",), fine_tune_tasks=("door",),
         fine_tune_steps=900, fine_tune_save_every=300, num_workers=1,
     ),
+    # A training idea tried in about 12 minutes on 2 cores: door's right door pushed and pulled (variations 2 and 3),
+    # 20 episodes each, 500 steps, one checkpoint evaluated on 10 held-out instances per variation.
+    "quick": ExperimentPreset(
+        image_size="48x88", episodes=20, steps=500, batch_size=16, vision_backbone="conv", save_every=500,
+        eval_checkpoints=1, eval_episodes=10, seeds=1, variations=(2, 3), single_task_tasks=("door",),
+        multi_task_tasks=("door",), novel_task_pool=("door", "press_button"), novel_task_tasks=("door",),
+        fine_tune_tasks=("door",), fine_tune_steps=300, fine_tune_save_every=100, num_workers=1,
+    ),
     # Minutes, end to end; CI runs single-task and fine-tune with it.
     "smoke": ExperimentPreset(
         image_size="32x56", episodes=2, steps=2, batch_size=4, train_obs_frames=2, vision_backbone="conv", save_every=2,
@@ -79,6 +93,10 @@ PRESETS: dict[str, ExperimentPreset] = {
 
 
 def _parse_value(name: str, current: Any, text: str) -> Any:
+    if name == "train_options":  # command-line options hold commas (--dataset.episodes=[0,1]): split on spaces
+        return tuple(text.split())
+    if name == "variations":
+        return tuple(int(item) for item in text.split(",") if item)
     if isinstance(current, tuple):
         items = [item for item in text.split(",") if item]
         return tuple(int(item) for item in items) if current and isinstance(current[0], int) else tuple(items)
@@ -111,9 +129,10 @@ def resolve_preset(name: str, overrides: list[str]) -> ExperimentPreset:
 
 def check_preset(preset: ExperimentPreset) -> None:
     """One clear line for budgets that cannot run (unknown tasks or methods, no checkpoint to evaluate)."""
-    for key in ("single_task_tasks", "multi_task_tasks", "novel_task_pool", "novel_task_tasks", "fine_tune_tasks", "ablation_tasks"):
+    for key in ("single_task_tasks", "multi_task_tasks", "novel_task_pool", "novel_task_tasks", "fine_tune_tasks",
+                "ablation_tasks", "learning_tasks"):
         check_tasks(getattr(preset, key), f"preset {key}")
-    for key in ("methods", "fine_tune_methods"):
+    for key in ("methods", "fine_tune_methods", "learning_methods"):
         unknown = [m for m in getattr(preset, key) if m not in POLICY_TYPES]
         if unknown or not getattr(preset, key):
             raise ExperimentError(f"preset {key} {','.join(unknown) or '(empty)'}: choose from {', '.join(POLICY_TYPES)}")
@@ -131,6 +150,20 @@ def check_preset(preset: ExperimentPreset) -> None:
         raise ExperimentError(f"preset executor={preset.executor!r}: choose local or ray")
     if preset.ray_address and preset.executor != "ray":
         raise ExperimentError("preset ray_address needs executor=ray: add --set executor=ray")
+    if any(v < 0 for v in preset.variations) or len(set(preset.variations)) != len(preset.variations):
+        raise ExperimentError(f"preset variations={preset.variations}: give distinct variation numbers (0, 1, ...)")
+    if preset.action_noise:
+        from mosaic_data.action_noise import parse_action_noise
+
+        try:
+            parse_action_noise(preset.action_noise)
+        except ValueError as error:
+            raise ExperimentError(f"preset action_noise: {error}") from None
+    if any(not option.startswith("--") for option in preset.train_options):
+        raise ExperimentError(
+            f"preset train_options={' '.join(preset.train_options)!r}: give lerobot-train options, e.g. "
+            "--set 'train_options=--policy.action_chunk=10 --policy.attention_pattern=full'"
+        )
     height, _, width = preset.image_size.partition("x")
     if not (height.isdigit() and width.isdigit()):
         raise ExperimentError(f"preset image_size={preset.image_size!r}: write it HxW, e.g. 100x180")

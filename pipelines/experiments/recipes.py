@@ -10,7 +10,10 @@ Each recipe turns (preset, tasks, seeds, output folder) into the same list of st
   (Table II, "Novel-task");
 - ``fine-tune``: those models fine-tuned on the held-out task with a fraction of its data, against training from
   scratch on the same fraction; every saved checkpoint is evaluated (the fine-tuning figure, Table II "Fine-tune");
-- ``ablations``: MOSAIC with one option changed at a time (the appendix tables and this project's own options).
+- ``ablations``: MOSAIC with one option changed at a time (the appendix tables and this project's own options,
+  the levers of learning on a CPU among them; ``--set ablation_variants=paper,chunk_10`` picks rows);
+- ``learning``: one method on one task, every saved checkpoint evaluated: the learning curve, per-variation
+  success and the confusion matrix (with the ``quick`` preset, a training idea tried in minutes).
 
 A plan also lists its :class:`Evaluation` entries: where each evaluation's results land and which table cell it
 feeds, which is all :mod:`.report` needs.
@@ -46,6 +49,15 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     "attention_full": ("attention pattern", ("--policy.attention_pattern=full",)),
     "with_state": ("this project: robot state input", ("--policy.use_state=true",)),
     "no_action_chunk": ("this project: action chunking", ("--policy.action_chunk=1",)),
+    "chunk_10": ("this project: action chunking", ("--policy.action_chunk=10",)),
+    "chunk_15": ("this project: action chunking", ("--policy.action_chunk=15",)),
+    "temporal_ensemble": ("this project: action chunking", ("--policy.temporal_ensemble_coeff=0.01",)),
+    "chunk_10_ensemble": (
+        "this project: action chunking", ("--policy.action_chunk=10", "--policy.temporal_ensemble_coeff=0.01"),
+    ),
+    "gripper_state": (
+        "this project: robot state input", ("--policy.use_state=true", "--policy.state_components=[gripper_opening]"),
+    ),
     "frame_stride_1": ("this project: time scale", ("--policy.frame_stride=1",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
@@ -109,12 +121,17 @@ class PlanBuilder:
     # data
     def dataset(self, task: str) -> DataPair:
         p = self.preset
+        check_variations(task, p.variations)
+        selection = (("--variations", ",".join(map(str, p.variations))) if p.variations else ()) + (
+            ("--action-noise", p.action_noise) if p.action_noise else ()
+        )
         self.plan.add(Stage(
             key=f"collect/{task}", kind="collect", output=self.data_dir / "mosaic" / f"{task}_panda",
-            title=f"collect {task} (Panda and Sawyer, {p.episodes} episodes per variation)",
+            title=f"collect {task} (Panda and Sawyer, {p.episodes} episodes per variation"
+                  f"{', variations ' + ','.join(map(str, p.variations)) if p.variations else ''})",
             command=("mosaic-data", "collect", "--task", task, "--robot", "both", "--episodes", str(p.episodes),
-                     "--image-size", p.image_size, *executor_args(p), "--output-dir", str(self.data_dir),
-                     "--quiet"),
+                     "--image-size", p.image_size, *selection, *executor_args(p), "--output-dir",
+                     str(self.data_dir), "--quiet"),
         ))
         return DataPair(f"mosaic/{task}_panda", self.data_dir / "mosaic" / f"{task}_panda",
                         f"mosaic/{task}_sawyer", self.data_dir / "mosaic" / f"{task}_sawyer", (task,))
@@ -159,7 +176,7 @@ class PlanBuilder:
                      f"--policy.train_obs_frames={p.train_obs_frames}", "--policy.push_to_hub=false",
                      f"--policy.device={p.device}", f"--batch_size={p.batch_size}", f"--steps={steps}",
                      f"--save_freq={save_every}", "--log_freq=50", f"--num_workers={p.num_workers}",
-                     f"--seed={TRAIN_SEED_BASE + seed}", f"--output_dir={train_dir}", *options),
+                     f"--seed={TRAIN_SEED_BASE + seed}", f"--output_dir={train_dir}", *p.train_options, *options),
         ))
         return train_dir
 
@@ -181,6 +198,8 @@ class PlanBuilder:
                            "--output", str(results), "--quiet"]
                 if p.eval_max_steps:
                     command += ["--max-steps", str(p.eval_max_steps)]
+                if p.variations:
+                    command += ["--variations", ",".join(map(str, p.variations))]
                 self.plan.add(Stage(
                     key=f"eval/{run}/step_{step:06d}/{task}", kind="evaluate", output=results,
                     title=f"evaluate {run} step {step} on {task}", command=tuple(command),
@@ -189,6 +208,16 @@ class PlanBuilder:
                     table=table, row=row, task=task, seed=seed, step=step, final=step in final, results=results,
                     **cell,  # type: ignore[arg-type]
                 ))
+
+
+def check_variations(task: str, variations: tuple[int, ...]) -> None:
+    """ExperimentError unless every selected variation is one of ``task``'s."""
+    count = len(VARIATIONS[task])
+    if any(v >= count for v in variations):
+        raise ExperimentError(
+            f"preset variations={','.join(map(str, variations))}: {task} has variations 0-{count - 1} "
+            f"(`mosaic-data tasks` lists them): choose them with --set variations=..."
+        )
 
 
 def episodes_fraction(task: str, episodes_per_variation: int, percent: int) -> list[int]:
@@ -290,14 +319,34 @@ def fine_tune(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
                                    fraction=fraction, mode=mode)
 
 
+def ablation_variants(preset: ExperimentPreset) -> tuple[str, ...]:
+    """The rows the preset asks for, in ABLATIONS' order (all of them when it names none)."""
+    unknown = [v for v in preset.ablation_variants if v not in ABLATIONS]
+    if unknown:
+        raise ExperimentError(f"preset ablation_variants: unknown {', '.join(unknown)}: choose from {', '.join(ABLATIONS)}")
+    return tuple(v for v in ABLATIONS if v in preset.ablation_variants or not preset.ablation_variants)
+
+
 def ablations(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
+    variants = ablation_variants(b.preset)
     for task in tasks:
         data = b.dataset(task)
-        for variant, (_, options) in ABLATIONS.items():
+        for variant in variants:
+            options = ABLATIONS[variant][1]
             for seed in _seeds(b.preset):
                 run = f"ablations/{task}/{variant}/seed{seed}"
                 train_dir = b.train(run, data, "mosaic", seed, options)
                 b.evaluate("ablations", variant, run, train_dir, (task,), seed)
+
+
+def learning(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
+    for task in tasks:
+        data = b.dataset(task)
+        for method in b.preset.learning_methods:
+            for seed in _seeds(b.preset):
+                run = f"learning/{task}/{method}/seed{seed}"
+                train_dir = b.train(run, data, method, seed)
+                b.evaluate("learning", method, run, train_dir, (task,), seed, every_checkpoint=True)
 
 
 RECIPES = {
@@ -306,6 +355,7 @@ RECIPES = {
     "novel-task": (novel_task, "novel_task_tasks", "Table II, Novel-task: trained on the other tasks, one-shot on a new one"),
     "fine-tune": (fine_tune, "fine_tune_tasks", "Table II, Fine-tune, and the fine-tuning figure: novel-task models fine-tuned on 25-100% of the new task's data vs training from scratch"),
     "ablations": (ablations, "ablation_tasks", "Appendix: contrastive placement, positive, BYOL, attention pattern, state input, action chunking, time scale"),
+    "learning": (learning, "learning_tasks", "One method on one task, every checkpoint evaluated: learning curve, per-variation success, confusion"),
 }
 """Recipe name -> (plan function, the preset field with its default tasks, what it reproduces)."""
 

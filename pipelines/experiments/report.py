@@ -36,6 +36,7 @@ TABLE_TITLES = {
     "novel-task": "Table II, Novel-task: trained on the other tasks, one-shot on the held-out task",
     "fine-tune": "Table II, Fine-tune: the novel-task model fine-tuned on all of the held-out task's data",
     "ablations": "Appendix ablations: MOSAIC with one option changed",
+    "learning": "Learning run: one method trained on the task, its last checkpoint(s)",
 }
 
 
@@ -243,6 +244,7 @@ def write_report(output_dir: Path, entries: list[dict[str, Any]]) -> dict[str, P
     ``entries``: per recipe run in the folder, {"recipe", "preset_name", "preset", "overrides", "plan",
     "seconds"} (seconds per stage kind, from the stages' done markers)."""
     from .figures import plot_bars, plot_confusion, plot_fine_tune
+    from .learning_report import learning_curves, per_variation_markdown, plot_learning_curves
 
     figures_dir = output_dir / "figures"
     figures_dir.mkdir(parents=True, exist_ok=True)
@@ -272,6 +274,13 @@ def write_report(output_dir: Path, entries: list[dict[str, Any]]) -> dict[str, P
         else:
             lines.append(f"\n### {TABLE_TITLES[table]}\n\n")
             lines.append(markdown_table(cells, table))
+        if table == "learning":
+            curves = learning_curves(plan)
+            lines.append("\n### Learning curve: every saved checkpoint, per variation (%)\n")
+            lines.append(per_variation_markdown(curves))
+            for path in plot_learning_curves(curves, figures_dir):
+                lines.append(f"\n![learning curve](figures/{path.name})\n")
+        elif table != "fine-tune":
             bars = plot_bars(cells, table, figures_dir / f"bars_{table}.png")
             if bars:
                 lines.append(f"\n![{table} against the paper](figures/{bars.name})\n")

@@ -176,3 +176,51 @@ def test_executor_ray_runs_collection_and_evaluation_on_ray(tmp_path):
     assert all("--executor" not in s.command for s in local.stages)
     with pytest.raises(ExperimentError, match="ray_address needs executor=ray"):
         resolve_preset("smoke", ["ray_address=auto"])
+
+
+def test_the_learning_recipe_evaluates_every_checkpoint_of_its_variations(tmp_path):
+    preset = resolve_preset("quick", ["steps=1000", "save_every=500"])
+    plan = build_plan("learning", preset, tmp_path / "exp")
+    collect, train, *evaluations = plan.stages
+    assert collect.command[collect.command.index("--variations") + 1] == "2,3"
+    assert "--policy.type=mosaic" in train.command and "--policy.vision_backbone=conv" in train.command
+    assert [e.step for e in plan.evaluations] == [500, 1000] and [e.final for e in plan.evaluations] == [False, True]
+    assert all(s.command[s.command.index("--variations") + 1] == "2,3" for s in evaluations)
+    assert {e.table for e in plan.evaluations} == {"learning"}
+
+
+def test_train_options_go_to_every_run_and_a_variant_overrides_them(tmp_path):
+    preset = resolve_preset("quick", ["train_options=--policy.action_chunk=10 --dataset.episodes=[0,1]",
+                                      "ablation_variants=paper,no_action_chunk"])
+    plan = build_plan("ablations", preset, tmp_path / "exp")
+    runs = {s.key.split("/")[3]: list(s.command) for s in plan.stages if s.kind == "train"}
+    assert set(runs) == {"paper", "no_action_chunk"}  # only the rows asked for
+    assert runs["paper"][-2:] == ["--policy.action_chunk=10", "--dataset.episodes=[0,1]"]
+    chunk = [a for a in runs["no_action_chunk"] if a.startswith("--policy.action_chunk=")]
+    assert chunk == ["--policy.action_chunk=10", "--policy.action_chunk=1"]  # the variant's comes last and wins
+
+
+def test_action_noise_goes_to_the_collection(tmp_path):
+    plan = build_plan("learning", resolve_preset("smoke", ["action_noise=0.005"]), tmp_path / "exp")
+    collect = plan.stages[0].command
+    assert collect[collect.index("--action-noise") + 1] == "0.005" and "--variations" not in collect
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("variations=1,7", "door has variations 0-3"),
+        ("variations=1,1", "give distinct variation numbers"),
+        ("ablation_variants=paper,chunk_99", "unknown chunk_99: choose from paper"),
+        ("train_options=policy.action_chunk=10", "give lerobot-train options"),
+        ("action_noise=5", "metres, not millimetres"),
+        ("learning_methods=act", "preset learning_methods act: choose from mosaic"),
+    ],
+)
+def test_bad_learning_settings_give_one_clear_line(override, message, tmp_path):
+    recipe = "ablations" if override.startswith("ablation") else "learning"
+    result = subprocess.run([*EXPERIMENT, "run", recipe, "--preset", "quick", "--set", override, "--dry-run"],
+                            capture_output=True, text=True, cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], result.stderr

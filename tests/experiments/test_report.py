@@ -86,3 +86,26 @@ def test_a_partial_evaluation_counts_as_missing(tmp_path):
     cell = json.loads(cli.report(output)["json"].read_text())["recipes"][0]["cells"][0]
     assert cell["mean"] is None and cell["missing_evaluations"] == 1
     assert cell["ci95_low"] is None and cell["ci95_high"] is None and cell["instances"] == 0
+
+
+def test_the_learning_report_has_a_curve_point_per_checkpoint_and_each_variations_success(tmp_path):
+    overrides = ["steps=4", "save_every=2"]
+    output = tmp_path / "exp"
+    args = cli.parse_args(["run", "learning", "--preset", "smoke", "--output", str(output)])
+    cli._record_settings(output, args, overrides, None)
+    plan = build_plan("learning", resolve_preset("smoke", overrides), output)
+    assert [e.step for e in plan.evaluations] == [2, 4]
+    # step 2: variation 0 succeeds; step 4: variations 0, 1 and 2 succeed, and variation 3's episode did variation 0
+    _results_file(plan.evaluations[0].results, "door", [[True], [False], [False], [False]])
+    _results_file(plan.evaluations[1].results, "door", [[True], [True], [True], [False]], achieved=0)
+    paths = cli.report(output)
+    recipe = json.loads(paths["json"].read_text())["recipes"][0]
+    points = recipe["curves"][0]["points"]
+    assert [(p["step"], p["success"]) for p in points] == [(2, 0.25), (4, 0.75)]
+    assert points[1]["per_variation"] == {"0": 1.0, "1": 1.0, "2": 1.0, "3": 0.0}
+    assert points[1]["wrong_variation_share"] == 0.25 and points[1]["ci95"] == pytest.approx(wilson_interval(3, 4))
+    assert [c["mean"] for c in recipe["cells"]] == [0.75]  # the table's cell: the last checkpoint
+    markdown = paths["markdown"].read_text()
+    assert "| 4 | 75.0 [30.1, 95.4] (n=4) | 25.0 | 100 | 100 | 100 | 0 |" in markdown
+    assert "(paper 67.1)" in markdown  # MOSAIC's single-task door number
+    assert (output / "figures" / "learning_door_mosaic.png").stat().st_size > 10_000

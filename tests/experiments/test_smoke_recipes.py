@@ -102,3 +102,17 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
     fine = stage_folder(output, target) / "command.txt"
     assert "--policy.path=" in fine.read_text() or "--resume=true" in fine.read_text()
     assert "novel-task/door/mosaic/seed1" in (stage_folder(output, target) / "log.txt").read_text()
+
+
+def test_learning_smoke_evaluates_every_checkpoint_into_a_curve(smoke_data, tmp_path):
+    output = tmp_path / "learning"
+    result = _run(["run", "learning", "--preset", "smoke", "--set", "steps=4", "--output", str(output),
+                   "--data-dir", str(smoke_data)])
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    recipe = json.loads((output / "results.json").read_text())["recipes"][0]
+    points = recipe["curves"][0]["points"]
+    assert [p["step"] for p in points] == [2, 4] and all(p["episodes"] == 4 for p in points)
+    assert set(points[-1]["per_variation"]) == {"0", "1", "2", "3"}
+    assert (output / "figures" / "learning_door_mosaic.png").stat().st_size > 10_000
+    assert (output / "figures" / "confusion_learning_mosaic_door.png").stat().st_size > 0
+    assert "Learning curve: every saved checkpoint" in (output / "results.md").read_text()
