@@ -94,9 +94,9 @@ def test_help_texts_load_no_heavy_module():
     for code in (
         "from mosaic_data.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
         "from pipelines.evaluation.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
-        # both list the policy types (mosaic_data.constants.POLICY_TYPES) without importing mosaic_policy
+        # it lists the policy types (mosaic_data.constants.POLICY_TYPES) without importing mosaic_policy
         "from pipelines.experiments.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass",
-        "from pipelines.bench.policy_learning import parse_args\ntry:\n    parse_args(['--help'])\nexcept SystemExit:\n    pass",
+        "from pipelines.experiments.cli import main\nmain(['run', 'learning', '--preset', 'quick', '--dry-run'])",
         "from mosaic_data.cli import main\nmain(['tasks'])",
     ):
         assert loaded_after(code) == set(), code
