@@ -9,10 +9,11 @@ One folder per policy, as LeRobot does (`configuration_X.py`, `modeling_X.py`, `
 - `mlp_osil/`: an MLP task context from stacked demo features (`--policy.type=mlp_osil`);
 - `daml/`: domain-adaptive meta-learning (`--policy.type=daml`).
 
-`common/` holds what they share: the vision trunks, attention, action head, augmentation, encodings, the
-demo-conditioning layer (paired demonstrator frames and loss weights inside lerobot-train) and the policy
-interface (`set_demo`, `select_action`). Only the configurations load here; LeRobot's factory imports a
-policy's modeling module when it builds one.
+`common/` holds what they share: the model skeleton (vision trunk, frame embedding, action and inverse-dynamics
+heads; each policy adds its task context), attention, augmentation, encodings, the demo-conditioning layer
+(paired demonstrator frames and loss weights inside lerobot-train) and the policy interface (`set_demo`,
+`select_action`). Only the configurations load here; LeRobot's factory imports a policy's modeling module when
+it builds one.
 """
 
 from mosaic_data.constants import POLICY_TYPES

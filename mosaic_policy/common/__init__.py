@@ -1,1 +1,3 @@
-"""Blocks every demo-conditioned policy shares: trunk, attention, action head, augmentation, encodings, the demo-conditioning layer and the policy interface."""
+"""Blocks every demo-conditioned policy shares: the model skeleton (trunk, frame embedding, action and
+inverse-dynamics heads), attention, augmentation, encodings, the demo-conditioning layer and the policy
+interface."""

@@ -3,9 +3,11 @@
 Training (lerobot-train): a batch holds `train_obs_frames` agent frames per sample, `frame_stride` frames apart,
 and the 20 Hz actions of the whole window; every frame predicts the `action_chunk` targets that follow it. The
 demonstrator frames and the loss weights come from :class:`~.demo_conditioning.DemoConditioning`. A subclass
-implements :meth:`build` (its modules), :meth:`compute_loss` (per-sample losses of a :class:`TrainingSample`),
+implements :meth:`build` (its model, a :class:`~.demo_conditioned_model.DemoConditionedModel`),
 :meth:`encode_demo` (what it keeps of a demonstration for a whole episode) and :meth:`chunk_distribution` (the
-action distribution of the current frame).
+action distribution of the current frame); :meth:`compute_loss` (per-sample losses of a
+:class:`TrainingSample`) is behaviour cloning plus inverse dynamics on the model's observation embeddings, and
+a policy with losses of its own overrides it.
 
 Inference: `policy.reset()` then `policy.set_demo(video)` once per episode (the policy encodes and caches what
 it can), then `select_action(batch)` every control step: the policy runs once per `action_chunk` steps and hands
@@ -37,7 +39,7 @@ from mosaic_data.constants import DEMO_FRAMES_KEY, OBS_DEMO_KEY
 from .augmentation import FrameAugmentation
 from .configuration_demo import DemoConditionedConfig
 from .demo_conditioning import DemoConditioning, to_float_frames
-from .discretized_logistic import DiscretizedLogisticHead, DiscretizedLogisticMixture
+from .discretized_logistic import DiscretizedLogisticMixture
 from .distributed import average_batchnorm_statistics, rank_random_generators
 from .paired_sampling import demo_frame_indices
 
@@ -72,11 +74,25 @@ def masked_mean(values: Tensor, mask: Tensor) -> Tensor:
     return (values * mask).sum(-1) / mask.sum(-1).clamp(min=1.0)
 
 
-def make_action_head(config: DemoConditionedConfig, in_dim: int, action_dim: int) -> DiscretizedLogisticHead:
-    """The paper's action head: one discretised logistic mixture per action dimension of every chunk target."""
-    return DiscretizedLogisticHead(
-        in_dim, action_dim * config.action_chunk, config.n_mixtures, config.head_hidden_dim, config.action_bins
-    )
+def expand_to_batch(context: Any, batch_size: int, dim: int = 0) -> Any:
+    """What a policy keeps of the demonstration (a tensor, or a list, tuple or dict of them, batch axis ``dim``)
+    for ``batch_size`` environments: as it is when set per environment, else one demonstration shared by all
+    (its size-1 batch axis expanded, without a copy)."""
+    if isinstance(context, Tensor):
+        n = context.shape[dim]
+        if n == batch_size:
+            return context
+        if n != 1:
+            raise ValueError(
+                f"the demonstration was set for {n} environments but the batch has {batch_size}: call set_demo with "
+                "one demonstration per environment, or a single one for all."
+            )
+        shape = list(context.shape)
+        shape[dim] = batch_size
+        return context.expand(shape)
+    if isinstance(context, dict):
+        return {key: expand_to_batch(value, batch_size, dim) for key, value in context.items()}
+    return type(context)(expand_to_batch(value, batch_size, dim) for value in context)
 
 
 class DemoConditionedPolicy(PreTrainedPolicy):
@@ -119,8 +135,10 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         raise NotImplementedError
 
     def compute_loss(self, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
-        """Per-sample losses (B,) of a training batch, and figures to log."""
-        raise NotImplementedError
+        """Per-sample losses (B,) of a training batch, and figures to log: behaviour cloning and inverse dynamics
+        of the model's observation embeddings (one augmented view)."""
+        demo, obs = self.views(sample)
+        return self.imitation_losses(self.model.observation_embeddings(self.model.trunk, demo, obs), sample)
 
     def encode_demo(self, demo: Tensor) -> Any:
         """What the policy keeps of a demonstration (B, n_demo_frames, 3, H, W) for a whole episode."""
@@ -321,23 +339,24 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         nll = chunk_nll(distribution, sample.chunks)  # (B, T, chunk)
         return masked_mean(nll.flatten(1), sample.chunk_valid.flatten(1)) * self.config.action_chunk
 
-    def inverse_loss(self, head: DiscretizedLogisticHead, embeddings: Tensor, sample: TrainingSample) -> Tensor:
+    def imitation_losses(self, embeddings: Tensor, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
+        """The weighted behaviour-cloning and inverse-dynamics losses (B,) of the observation frames' embeddings
+        (B, T, embed_dim), and their means to log."""
+        cfg = self.config
+        bc = self.bc_loss(self.model.action_distribution(embeddings, sample.state), sample)
+        inverse = self.inverse_loss(embeddings, sample)
+        per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
+        return per_sample, {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}
+
+    def inverse_loss(self, embeddings: Tensor, sample: TrainingSample) -> Tensor:
         """Per-sample inverse-dynamics NLL: two consecutive frame embeddings -> the targets from the first on."""
         b, t = embeddings.shape[:2]
         if t < 2:
             return torch.zeros(b, device=embeddings.device)
         pair_valid = sample.chunk_valid[:, :-1] & sample.valid[:, 1:, None]
         inverse_in = torch.cat([embeddings[:, :-1], embeddings[:, 1:]], dim=-1)
-        nll = chunk_nll(head(inverse_in), sample.chunks[:, :-1])
+        nll = chunk_nll(self.model.inverse_head(inverse_in), sample.chunks[:, :-1])
         return masked_mean(nll.flatten(1), pair_valid.flatten(1)) * self.config.action_chunk
-
-    def state_for_head(self, state: Tensor | None, like: Tensor) -> Tensor | None:
-        """The state the action head reads (None unless use_state), shaped like the embeddings' leading dims."""
-        if not self.config.use_state:
-            return None
-        if state is None:
-            raise ValueError("use_state is on but the batch has no observation.state.")
-        return state.reshape(*like.shape[:-1], -1)
 
     # -- hub ------------------------------------------------------------------------------------------------
 

@@ -7,6 +7,9 @@ temporal adaptation loss of the policy's own activations on the demo frames, and
 cloning on the agent's frames with the adapted weights) teaches that loss, the initial weights and the inner
 learning rates what a useful adaptation is.
 
+The trunk and the action head are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
+(the same in every row of the table); the keypoints and the adapted MLP take the frame embedding's place.
+
 What is adapted, and why:
 
 - the policy MLP only. The trunk is shared and meta-learned but never adapted: a per-sample copy of its 2.8M
@@ -39,10 +42,10 @@ import torch
 from torch import Tensor, nn
 from torch.func import functional_call, grad_and_value, vmap
 
-from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
+from ..common.demo_conditioned_model import DemoConditionedModel
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, expand_to_batch
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import EMBED_CHANNELS, trunk_features
-from ..common.trunks import make_trunk
 from .configuration_daml import DamlConfig
 
 N_KEYPOINTS = EMBED_CHANNELS
@@ -106,33 +109,30 @@ class TemporalAdaptationLoss(nn.Module):
         return self.net(activations.T).pow(2).sum(0).mean()
 
 
-class DamlModel(nn.Module):
-    """Trunk, keypoints, the adapted policy MLP, the shared action head, the adaptation loss, the inner rates."""
+class DamlModel(DemoConditionedModel):
+    """The shared trunk and action head; keypoints and the adapted policy MLP in place of the frame embedding, the
+    adaptation loss and the inner rates. No inverse-dynamics head (DAML has no inverse loss)."""
+
+    has_frame_embedding = False
+    has_inverse_head = False
 
     def __init__(self, config: DamlConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
-        super().__init__()
-        self.trunk = make_trunk(config)
-        channels, h, w = self.trunk.feature_shape(*image_hw)
-        self.feature_shape = (channels, h, w)
-        self.keypoints = SpatialSoftArgmax(channels, h, w)
-        self.policy = policy_mlp(2 * N_KEYPOINTS, config.policy_hidden_dim, config.n_policy_layers, config.embed_dim)
-        self.state_dim = state_dim
-        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
+        super().__init__(config, image_hw, state_dim, action_dim)
         self.adapt_loss = TemporalAdaptationLoss(config.embed_dim, config.adapt_loss_channels)
         self.adapted_names = [name for name, _ in self.policy.named_parameters()]
         # One learned inner learning rate per adapted tensor, kept as a log so it stays positive.
         self.log_inner_lr = nn.Parameter(torch.full((len(self.adapted_names),), math.log(config.inner_lr)))
+
+    def build_context(self, channels: int, height: int, width: int) -> None:
+        config = self.config
+        self.keypoints = SpatialSoftArgmax(channels, height, width)
+        self.policy = policy_mlp(2 * N_KEYPOINTS, config.policy_hidden_dim, config.n_policy_layers, config.embed_dim)
 
     def frame_keypoints(self, trunk: nn.Module, frames: Tensor) -> Tensor:
         """(B, T, 3, H, W) -> (B, T, 2K)."""
         features = trunk_features(trunk, frames)  # (B, C, T, h, w)
         b, _, t = features.shape[:3]
         return self.keypoints(features.transpose(1, 2).flatten(0, 1)).reshape(b, t, -1)
-
-    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
-        if self.state_dim:
-            embeddings = torch.cat([embeddings, state], dim=-1)
-        return self.action_head(embeddings)
 
 
 class DamlPolicy(DemoConditionedPolicy):
@@ -189,19 +189,9 @@ class DamlPolicy(DemoConditionedPolicy):
         self, image: Tensor, state: Tensor | None, context: AdaptedWeights
     ) -> DiscretizedLogisticMixture:
         keypoints = self.model.frame_keypoints(self.trunk_for_inference(), image.unsqueeze(1))  # (n, 1, 2K)
-        adapted = self._for_batch(context, keypoints.shape[0])
+        adapted = expand_to_batch(context, keypoints.shape[0])
         embeddings = self.adapted_embeddings(adapted, keypoints)[:, 0]
-        return self.model.action_distribution(embeddings, self.state_for_head(state, embeddings))
-
-    @staticmethod
-    def _for_batch(adapted: AdaptedWeights, n: int) -> AdaptedWeights:
-        """The adapted weights for n observations: as they are, or one demo's weights shared by all n."""
-        b = next(iter(adapted.values())).shape[0]
-        if b == n:
-            return adapted
-        if b != 1:
-            raise ValueError(f"set_demo was given {b} demos but the batch has {n} observations: give {n} demos or one.")
-        return {name: tensor.expand(n, *tensor.shape[1:]) for name, tensor in adapted.items()}
+        return self.model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
 
@@ -212,8 +202,7 @@ class DamlPolicy(DemoConditionedPolicy):
         d = demo.shape[1]
         adapted, loss_before = self.adapt(keypoints[:, :d])
         embeddings = self.adapted_embeddings(adapted, keypoints[:, d:])  # (B, T, E)
-        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
-        bc = self.bc_loss(distribution, sample)
+        bc = self.bc_loss(self.model.action_distribution(embeddings, sample.state), sample)
         info = {
             "bc_loss": bc.mean().item(),
             "adaptation_loss": loss_before.mean().item(),

@@ -6,6 +6,8 @@ observation frames in order -> its output at each observation frame, projected t
 action head (behaviour cloning) and the inverse-dynamics head. No contrastive module: the row isolates what
 attention adds.
 
+The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
+(the same in every row of the table); this module builds the LSTM and its output projection.
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy`. Acting, `set_demo` runs the
 LSTM over the demonstration once and caches its (h, c) state; every query embeds the current frame, keeps it in
 a memory of the last `train_obs_frames` query frames and runs the LSTM from the cached state over that memory,
@@ -17,26 +19,21 @@ from collections import deque
 import torch
 from torch import Tensor, nn
 
-from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
+from ..common.demo_conditioned_model import DemoConditionedModel
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, expand_to_batch
 from ..common.discretized_logistic import DiscretizedLogisticMixture
-from ..common.frame_features import FrameEmbedding, trunk_features
-from ..common.trunks import make_trunk
 from .configuration_lstm_osil import LstmOsilConfig
 
 LstmState = tuple[Tensor, Tensor]
 """(h, c) of an `nn.LSTM`, each (n_lstm_layers, B, lstm_hidden_dim)."""
 
 
-class LstmOsilModel(nn.Module):
-    """Trunk, projector, LSTM, output projection and heads."""
+class LstmOsilModel(DemoConditionedModel):
+    """The shared trunk, projector (the frame embedding) and heads; an LSTM and its output projection as the task
+    context."""
 
-    def __init__(self, config: LstmOsilConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
-        super().__init__()
-        self.config = config
-        self.trunk = make_trunk(config)
-        channels, h, w = self.trunk.feature_shape(*image_hw)
-        self.feature_shape = (channels, h, w)
-        self.embed = FrameEmbedding(channels, h, w, config.embed_dim)
+    def build_context(self, channels: int, height: int, width: int) -> None:
+        config = self.config
         self.lstm = nn.LSTM(
             config.embed_dim,
             config.lstm_hidden_dim,
@@ -45,42 +42,17 @@ class LstmOsilModel(nn.Module):
             dropout=config.lstm_dropout if config.n_lstm_layers > 1 else 0.0,  # nn.LSTM warns on 1 layer
         )
         self.output = nn.Sequential(nn.Linear(config.lstm_hidden_dim, config.embed_dim), nn.ReLU())
-        self.state_dim = state_dim
-        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
-        self.inverse_head = make_action_head(config, 2 * config.embed_dim, action_dim)
-
-    def frame_vectors(self, trunk: nn.Module, frames: Tensor) -> Tensor:
-        """(B, T, 3, H, W) -> (B, T, embed_dim): the projector's vector of every frame on its own."""
-        return self.embed.frames(trunk_features(trunk, frames))
 
     def run_lstm(self, vectors: Tensor, state: LstmState | None = None) -> tuple[Tensor, LstmState]:
         """(B, T, embed_dim) from `state` (zeros when None) -> outputs (B, T, lstm_hidden_dim) and the last state."""
         return self.lstm(vectors, state)
 
-    def encode(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
-        """Demo (B, D, 3, H, W) then observation (B, T, 3, H, W) frames -> (B, T, embed_dim) frame embeddings."""
+    def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
+        """The LSTM reads the demo frames (B, D, 3, H, W), then the observation frames (B, T, 3, H, W); its
+        outputs at the observation frames, projected, are their embeddings (B, T, embed_dim)."""
         vectors = self.frame_vectors(trunk, torch.cat([demo, obs], dim=1))
         outputs, _ = self.run_lstm(vectors)
         return self.output(outputs[:, demo.shape[1] :])
-
-    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
-        if self.state_dim:
-            embeddings = torch.cat([embeddings, state], dim=-1)
-        return self.action_head(embeddings)
-
-
-def expand_state(state: LstmState, batch_size: int) -> LstmState:
-    """The demonstration's LSTM state for an observation batch of `batch_size` (a batch-1 demo is shared)."""
-    demo_batch = state[0].shape[1]
-    if demo_batch == batch_size:
-        return state
-    if demo_batch != 1:
-        raise ValueError(
-            f"the demonstration was set for {demo_batch} environments but the batch has {batch_size}; "
-            "call set_demo with one demonstration per environment or a single one."
-        )
-    h, c = state
-    return h.expand(-1, batch_size, -1).contiguous(), c.expand(-1, batch_size, -1).contiguous()
 
 
 class LstmOsilPolicy(DemoConditionedPolicy):
@@ -105,28 +77,14 @@ class LstmOsilPolicy(DemoConditionedPolicy):
 
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: LstmState) -> DiscretizedLogisticMixture:
         vector = self.model.frame_vectors(self.trunk_for_inference(), image.unsqueeze(1))[:, 0]  # (B, E)
-        # Inputs are checked before the memory takes the frame: a failed query leaves the episode as it was.
-        head_state = self.state_for_head(state, vector)
-        demo_state = expand_state(context, vector.shape[0])
+        h, c = expand_to_batch(context, vector.shape[0], dim=1)
         if self._memory and self._memory[-1].shape[0] != vector.shape[0]:
             raise ValueError(
                 f"the batch changed from {self._memory[-1].shape[0]} to {vector.shape[0]} environments mid-episode; "
                 "call policy.reset() and set_demo() before changing it."
             )
-        self._memory.append(vector)
-        window = torch.stack(list(self._memory), dim=1)  # (B, T', E), current frame last
-        outputs, _ = self.model.run_lstm(window, demo_state)
-        embeddings = self.model.output(outputs[:, -1])
-        return self.model.action_distribution(embeddings, head_state)
-
-    # -- training -------------------------------------------------------------------------------------------
-
-    def compute_loss(self, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
-        cfg = self.config
-        demo, obs = self.views(sample)
-        embeddings = self.model.encode(self.model.trunk, demo, obs)  # (B, T, E)
-        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
-        bc = self.bc_loss(distribution, sample)
-        inverse = self.inverse_loss(self.model.inverse_head, embeddings, sample)
-        per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
-        return per_sample, {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}
+        window = torch.stack([*self._memory, vector], dim=1)[:, -self.config.train_obs_frames :]  # current last
+        outputs, _ = self.model.run_lstm(window, (h.contiguous(), c.contiguous()))
+        distribution = self.model.action_distribution(self.model.output(outputs[:, -1]), state)
+        self._memory.append(vector)  # remembered once the query succeeded: a failed one leaves the episode as it was
+        return distribution

@@ -7,6 +7,8 @@ projected to `embed_dim`, feeds the shared action head (behaviour cloning) and t
 attention, no memory of past frames and no contrastive module: the row measures a plain conditioning of the same
 trunk.
 
+The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
+(the same in every row of the table); this module builds the context MLP and the fusion layer.
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy`; acting, `set_demo` computes
 the context once per episode.
 """
@@ -14,10 +16,9 @@ the context once per episode.
 import torch
 from torch import Tensor, nn
 
-from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head
+from ..common.demo_conditioned_model import DemoConditionedModel
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, expand_to_batch
 from ..common.discretized_logistic import DiscretizedLogisticMixture
-from ..common.frame_features import FrameEmbedding, trunk_features
-from ..common.trunks import make_trunk
 from .configuration_mlp_osil import MlpOsilConfig
 
 
@@ -30,26 +31,15 @@ def context_mlp(in_dim: int, n_layers: int, hidden_dim: int, out_dim: int) -> nn
     return nn.Sequential(*layers)
 
 
-class MlpOsilModel(nn.Module):
-    """Trunk, projector, context MLP, fusion layer and heads."""
+class MlpOsilModel(DemoConditionedModel):
+    """The shared trunk, projector (the frame embedding) and heads; the context MLP and the fusion layer as the
+    task context."""
 
-    def __init__(self, config: MlpOsilConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
-        super().__init__()
-        self.config = config
-        self.trunk = make_trunk(config)
-        channels, h, w = self.trunk.feature_shape(*image_hw)
-        self.feature_shape = (channels, h, w)
-        self.embed = FrameEmbedding(channels, h, w, config.embed_dim)
+    def build_context(self, channels: int, height: int, width: int) -> None:
+        config = self.config
         demo_dim = config.n_demo_frames * config.embed_dim
         self.context = context_mlp(demo_dim, config.n_context_layers, config.context_hidden_dim, config.context_dim)
         self.fuse = nn.Sequential(nn.Linear(config.embed_dim + config.context_dim, config.embed_dim), nn.ReLU())
-        self.state_dim = state_dim
-        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
-        self.inverse_head = make_action_head(config, 2 * config.embed_dim, action_dim)
-
-    def frame_vectors(self, trunk: nn.Module, frames: Tensor) -> Tensor:
-        """(B, T, 3, H, W) -> (B, T, embed_dim): the projector's vector of every frame on its own."""
-        return self.embed.frames(trunk_features(trunk, frames))
 
     def task_context(self, demo_vectors: Tensor) -> Tensor:
         """(B, D, embed_dim) demonstration vectors -> (B, context_dim); the order of the frames matters."""
@@ -60,28 +50,12 @@ class MlpOsilModel(nn.Module):
         context = context[:, None].expand(-1, obs_vectors.shape[1], -1)
         return self.fuse(torch.cat([obs_vectors, context], dim=-1))
 
-    def encode(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
-        """Demo (B, D, 3, H, W) and observation (B, T, 3, H, W) frames -> (B, T, embed_dim) frame embeddings."""
+    def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
+        """Demo (B, D, 3, H, W) and observation (B, T, 3, H, W) frames -> (B, T, embed_dim): each observation
+        frame's vector fused with the demonstration's context."""
         vectors = self.frame_vectors(trunk, torch.cat([demo, obs], dim=1))
         d = demo.shape[1]
         return self.fuse_context(vectors[:, d:], self.task_context(vectors[:, :d]))
-
-    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
-        if self.state_dim:
-            embeddings = torch.cat([embeddings, state], dim=-1)
-        return self.action_head(embeddings)
-
-
-def expand_context(context: Tensor, batch_size: int) -> Tensor:
-    """The demonstration's context for an observation batch of `batch_size` (a batch-1 demo is shared)."""
-    if context.shape[0] == batch_size:
-        return context
-    if context.shape[0] != 1:
-        raise ValueError(
-            f"the demonstration was set for {context.shape[0]} environments but the batch has {batch_size}; "
-            "call set_demo with one demonstration per environment or a single one."
-        )
-    return context.expand(batch_size, -1)
 
 
 class MlpOsilPolicy(DemoConditionedPolicy):
@@ -101,17 +75,5 @@ class MlpOsilPolicy(DemoConditionedPolicy):
 
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Tensor) -> DiscretizedLogisticMixture:
         vectors = self.model.frame_vectors(self.trunk_for_inference(), image.unsqueeze(1))  # (B, 1, E)
-        embeddings = self.model.fuse_context(vectors, expand_context(context, vectors.shape[0]))[:, 0]
-        return self.model.action_distribution(embeddings, self.state_for_head(state, embeddings))
-
-    # -- training -------------------------------------------------------------------------------------------
-
-    def compute_loss(self, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
-        cfg = self.config
-        demo, obs = self.views(sample)
-        embeddings = self.model.encode(self.model.trunk, demo, obs)  # (B, T, E)
-        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
-        bc = self.bc_loss(distribution, sample)
-        inverse = self.inverse_loss(self.model.inverse_head, embeddings, sample)
-        per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
-        return per_sample, {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}
+        embeddings = self.model.fuse_context(vectors, expand_to_batch(context, vectors.shape[0]))[:, 0]
+        return self.model.action_distribution(embeddings, state)

@@ -6,6 +6,8 @@ per-frame embedding -> discretised logistic mixture over actions (behaviour clon
 predicts the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA
 target encoder shapes the representation before and/or after attention.
 
+The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
+(the same in every row of the table); this module builds the attention and the contrastive modules.
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy` (the interface every
 demo-conditioned policy shares). Acting, the demo tokens and every layer's demo keys/values are computed once
 per episode by `set_demo` and cached; `predict_with_attention` also returns the attention weights.
@@ -17,11 +19,11 @@ import torch
 from torch import Tensor, nn
 
 from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
-from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head, masked_mean
+from ..common.demo_conditioned_model import DemoConditionedModel
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, expand_to_batch, masked_mean
 from ..common.discretized_logistic import DiscretizedLogisticMixture
-from ..common.frame_features import FrameEmbedding, FrameMemory, trunk_features
+from ..common.frame_features import FrameMemory, trunk_features
 from ..common.run_progress import run_progress
-from ..common.trunks import make_trunk
 from .configuration_mosaic import MosaicConfig
 from .contrastive import TemporalContrastiveModule, ema_momentum, ema_update, make_target, positive_indices
 
@@ -29,27 +31,13 @@ DEFAULT_EMA_STEPS = 100_000
 """EMA schedule length outside a lerobot-train run that tells it (LeRobot's default --steps)."""
 
 
-class MosaicModel(nn.Module):
-    """The online network: trunk, attention, heads and contrastive modules (no EMA target here)."""
+class MosaicModel(DemoConditionedModel):
+    """The online network: the shared trunk, embedding and heads, attention as the task context, and the
+    contrastive modules (no EMA target here)."""
 
     def __init__(self, config: MosaicConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
-        super().__init__()
-        self.config = config
-        self.trunk = make_trunk(config)
-        channels, h, w = self.trunk.feature_shape(*image_hw)
-        self.feature_shape = (channels, h, w)
-        self.attention = NonLocalAttentionStack(
-            channels,
-            config.n_attention_layers,
-            config.n_attention_heads,
-            config.attention_temperature,
-            config.attention_dropout,
-            config.attention_pattern,
-        )
-        self.embed = FrameEmbedding(channels, h, w, config.embed_dim)
-        self.state_dim = state_dim
-        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
-        self.inverse_head = make_action_head(config, 2 * config.embed_dim, action_dim)
+        super().__init__(config, image_hw, state_dim, action_dim)
+        channels, h, w = self.feature_shape
 
         def contrastive():
             return TemporalContrastiveModule(
@@ -67,9 +55,16 @@ class MosaicModel(nn.Module):
         # Every observation frame has the temporal code "current frame" (index n_demo_frames), whatever T is.
         self.register_buffer("obs_position", spatio_temporal_encoding(channels, [d], h, w), persistent=False)
 
-    def trunk_features(self, trunk: nn.Module, frames: Tensor) -> Tensor:
-        """(B, T, 3, H, W) -> (B, C, T, h, w)."""
-        return trunk_features(trunk, frames)
+    def build_context(self, channels: int, height: int, width: int) -> None:
+        config = self.config
+        self.attention = NonLocalAttentionStack(
+            channels,
+            config.n_attention_layers,
+            config.n_attention_heads,
+            config.attention_temperature,
+            config.attention_dropout,
+            config.attention_pattern,
+        )
 
     def obs_position_for(self, n_frames: int) -> Tensor:
         if self.config.attention_pattern == "full":  # frames that see each other are told apart by time
@@ -82,7 +77,7 @@ class MosaicModel(nn.Module):
         self, trunk: nn.Module, attention: nn.Module, demo: Tensor, obs: Tensor, return_weights: bool = False
     ) -> dict[str, Any]:
         """Trunk + attention for demo (B, D, 3, H, W) and observation (B, T, 3, H, W) frames."""
-        both = self.trunk_features(trunk, torch.cat([demo, obs], dim=1))
+        both = trunk_features(trunk, torch.cat([demo, obs], dim=1))
         d = demo.shape[1]
         demo_f, obs_f = both[:, :, :d], both[:, :, d:]
         demo_out, obs_out, weights = attention(
@@ -90,14 +85,8 @@ class MosaicModel(nn.Module):
         )
         return {"demo_pre": demo_f, "obs_pre": obs_f, "demo_post": demo_out, "obs_post": obs_out, "weights": weights}
 
-    def frame_embeddings(self, obs_out: Tensor) -> Tensor:
-        """(B, C, T, h, w) -> (B, T, embed_dim)."""
-        return self.embed.frames(obs_out)
-
-    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
-        if self.state_dim:
-            embeddings = torch.cat([embeddings, state], dim=-1)
-        return self.action_head(embeddings)
+    def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
+        return self.frame_embeddings(self.encode(trunk, self.attention, demo, obs)["obs_post"])
 
 
 def _pooled(features: Tensor) -> Tensor:
@@ -131,7 +120,7 @@ class MosaicPolicy(DemoConditionedPolicy):
 
     def encode_demo(self, demo: Tensor) -> list[tuple[Tensor, Tensor]]:
         """Every attention layer's demo keys/values (the demo stream depends on the demo only)."""
-        features = self.model.trunk_features(self.trunk_for_inference(), demo) + self.model.demo_position
+        features = trunk_features(self.trunk_for_inference(), demo) + self.model.demo_position
         _, cache = self.model.attention.encode_demo(features)
         return cache
 
@@ -157,12 +146,8 @@ class MosaicPolicy(DemoConditionedPolicy):
         return self._distribution(image, state, context, return_weights=False)
 
     def _distribution(self, image: Tensor, state: Tensor | None, cache, return_weights: bool) -> DiscretizedLogisticMixture:
-        features = self.model.trunk_features(self.trunk_for_inference(), image.unsqueeze(1))
-        b = features.shape[0]
-        if cache[0][0].shape[0] != b:
-            if cache[0][0].shape[0] != 1:
-                raise ValueError(f"the demonstration was set for {cache[0][0].shape[0]} environments but the batch has {b}.")
-            cache = [(k.expand(b, -1, -1, -1), v.expand(b, -1, -1, -1)) for k, v in cache]
+        features = trunk_features(self.trunk_for_inference(), image.unsqueeze(1))
+        cache = expand_to_batch(cache, features.shape[0])
         if self.config.attention_pattern == "full":  # recompute over the remembered frames, keep the current one
             window = self._memory.push(features[:, :, 0])
             obs = window + self.model.obs_position_for(window.shape[2])
@@ -171,7 +156,7 @@ class MosaicPolicy(DemoConditionedPolicy):
             obs = features + self.model.obs_position
             obs_out, self._last_weights = self.model.attention.attend_obs(obs, cache, return_weights)
         embeddings = self.model.frame_embeddings(obs_out)[:, 0]
-        return self.model.action_distribution(embeddings, self.state_for_head(state, embeddings))
+        return self.model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
 
@@ -179,12 +164,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         cfg = self.config
         view1_demo, view1_obs = self.views(sample)
         online = self.model.encode(self.model.trunk, self.model.attention, view1_demo, view1_obs)
-        embeddings = self.model.frame_embeddings(online["obs_post"])  # (B, T, E)
-        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
-        bc = self.bc_loss(distribution, sample)
-        inverse = self.inverse_loss(self.model.inverse_head, embeddings, sample)
-        per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
-        info = {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}
+        per_sample, info = self.imitation_losses(self.model.frame_embeddings(online["obs_post"]), sample)
         if cfg.contrastive != "off" and self.training:
             contrastive = self._contrastive_loss(online, sample.demo, sample.obs, sample.valid)
             per_sample = per_sample + cfg.contrastive_loss_weight * contrastive
@@ -201,7 +181,7 @@ class MosaicPolicy(DemoConditionedPolicy):
             if self.target_attention is not None:
                 target = self.model.encode(self.target_trunk, self.target_attention, view2_demo, view2_obs)
             else:
-                both = self.model.trunk_features(self.target_trunk, torch.cat([view2_demo, view2_obs], dim=1))
+                both = trunk_features(self.target_trunk, torch.cat([view2_demo, view2_obs], dim=1))
                 target = {"demo_pre": both[:, :, :d], "obs_pre": both[:, :, d:]}
 
         # Frames of a sample: its demo frames (positive: the same frame) then its observation frames.

@@ -8,6 +8,8 @@ losses: inverse dynamics between consecutive embeddings, and point prediction (a
 frame's attended feature map regresses the gripper target `point_horizon` frames ahead; see
 :class:`TosilConfig`). No contrastive module.
 
+The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
+(the same in every row of the table); this module builds the full-pattern attention and the point head.
 Acting follows :mod:`mosaic_policy.common.demo_conditioned_policy`: `set_demo` caches every layer's demo
 keys/values once per episode; each query pushes the current frame's trunk features into a memory of the last
 `train_obs_frames` query frames and recomputes the causal attention over them, so the current frame sees what
@@ -23,10 +25,10 @@ from torch import Tensor, nn
 from lerobot.utils.constants import ACTION
 
 from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
-from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, make_action_head, masked_mean
+from ..common.demo_conditioned_model import DemoConditionedModel
+from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, expand_to_batch, masked_mean
 from ..common.discretized_logistic import DiscretizedLogisticMixture
-from ..common.frame_features import FrameEmbedding, FrameMemory, trunk_features
-from ..common.trunks import make_trunk
+from ..common.frame_features import FrameMemory, trunk_features
 from .configuration_tosil import TosilConfig
 
 N_KEYPOINTS = 32
@@ -94,15 +96,22 @@ def point_targets(
     return targets, exists
 
 
-class TosilModel(nn.Module):
-    """Trunk, full-pattern attention, frame embedding and the three heads (action, inverse, point)."""
+class TosilModel(DemoConditionedModel):
+    """The shared trunk, embedding and heads, full-pattern attention as the task context, and the point head."""
 
     def __init__(self, config: TosilConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
-        super().__init__()
-        self.config = config
-        self.trunk = make_trunk(config)
-        channels, h, w = self.trunk.feature_shape(*image_hw)
-        self.feature_shape = (channels, h, w)
+        super().__init__(config, image_hw, state_dim, action_dim)
+        channels, h, w = self.feature_shape
+        self.point_head = PointHead(channels, config.head_hidden_dim) if config.point_loss_weight > 0 else None
+        d, t = config.n_demo_frames, config.train_obs_frames
+        self.register_buffer("demo_position", spatio_temporal_encoding(channels, list(range(d)), h, w), persistent=False)
+        # Observation frames are told apart by time: a sample's (or the memory's) first frame is at D, the next D+1...
+        self.register_buffer(
+            "obs_position", spatio_temporal_encoding(channels, list(range(d, d + t)), h, w), persistent=False
+        )
+
+    def build_context(self, channels: int, height: int, width: int) -> None:
+        config = self.config
         self.attention = NonLocalAttentionStack(
             channels,
             config.n_attention_layers,
@@ -110,17 +119,6 @@ class TosilModel(nn.Module):
             config.attention_temperature,
             config.attention_dropout,
             pattern="full",
-        )
-        self.embed = FrameEmbedding(channels, h, w, config.embed_dim)
-        self.state_dim = state_dim
-        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
-        self.inverse_head = make_action_head(config, 2 * config.embed_dim, action_dim)
-        self.point_head = PointHead(channels, config.head_hidden_dim) if config.point_loss_weight > 0 else None
-        d, t = config.n_demo_frames, config.train_obs_frames
-        self.register_buffer("demo_position", spatio_temporal_encoding(channels, list(range(d)), h, w), persistent=False)
-        # Observation frames are told apart by time: a sample's (or the memory's) first frame is at D, the next D+1...
-        self.register_buffer(
-            "obs_position", spatio_temporal_encoding(channels, list(range(d, d + t)), h, w), persistent=False
         )
 
     def obs_position_for(self, n_frames: int) -> Tensor:
@@ -138,8 +136,7 @@ class TosilModel(nn.Module):
 
     def attend(self, obs_features: Tensor, cache: DemoCache) -> Tensor:
         """Trunk features (B, C, T, h, w) of consecutive observation frames -> attended features, causal in time."""
-        b = obs_features.shape[0]
-        cache = expand_cache(cache, b)
+        cache = expand_to_batch(cache, obs_features.shape[0])
         return self.attention.attend_obs_causal(obs_features + self.obs_position_for(obs_features.shape[2]), cache)
 
     def encode(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
@@ -149,27 +146,8 @@ class TosilModel(nn.Module):
         _, cache = self.attention.encode_demo(both[:, :, :d] + self.demo_position)
         return self.attend(both[:, :, d:], cache)
 
-    def frame_embeddings(self, obs_out: Tensor) -> Tensor:
-        """(B, C, T, h, w) -> (B, T, embed_dim)."""
-        return self.embed.frames(obs_out)
-
-    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
-        if self.state_dim:
-            embeddings = torch.cat([embeddings, state], dim=-1)
-        return self.action_head(embeddings)
-
-
-def expand_cache(cache: DemoCache, batch_size: int) -> DemoCache:
-    """The demo cache for `batch_size` environments: one demonstration set for all is shared (expanded)."""
-    n = cache[0][0].shape[0]
-    if n == batch_size:
-        return cache
-    if n != 1:
-        raise ValueError(
-            f"the demonstration was set for {n} environments but the batch has {batch_size}: "
-            "set_demo one video per environment, or one for all."
-        )
-    return [(k.expand(batch_size, -1, -1, -1), v.expand(batch_size, -1, -1, -1)) for k, v in cache]
+    def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
+        return self.frame_embeddings(self.encode(trunk, demo, obs))
 
 
 class TosilPolicy(DemoConditionedPolicy):
@@ -203,7 +181,7 @@ class TosilPolicy(DemoConditionedPolicy):
         window = self._memory.push(features[:, :, 0])  # (B, C, T', h, w)
         current = self.model.attend(window, context)[:, :, -1:]
         embeddings = self.model.frame_embeddings(current)[:, 0]
-        return self.model.action_distribution(embeddings, self.state_for_head(state, embeddings))
+        return self.model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
 
@@ -211,12 +189,7 @@ class TosilPolicy(DemoConditionedPolicy):
         cfg = self.config
         demo, obs = self.views(sample)
         obs_out = self.model.encode(self.model.trunk, demo, obs)  # (B, C, T, h, w)
-        embeddings = self.model.frame_embeddings(obs_out)
-        distribution = self.model.action_distribution(embeddings, self.state_for_head(sample.state, embeddings))
-        bc = self.bc_loss(distribution, sample)
-        inverse = self.inverse_loss(self.model.inverse_head, embeddings, sample)
-        per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
-        info = {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}
+        per_sample, info = self.imitation_losses(self.model.frame_embeddings(obs_out), sample)
         if self.model.point_head is not None:
             point = self.point_loss(obs_out, sample)
             per_sample = per_sample + cfg.point_loss_weight * point

@@ -1,6 +1,9 @@
-"""Every row of the paper's Table I through the same commands: `lerobot-train --policy.type=X` on tiny real
-datasets writes a checkpoint that loads with `from_pretrained`, acts in `mosaic-eval` (rows side by side, with
-the confusion matrix) and in `lerobot-eval --env.type=mosaic`, and `--help` shows the type's options."""
+"""Every row of the paper's Table I through the same commands and the same checks: `lerobot-train
+--policy.type=X` on tiny real datasets writes a checkpoint that loads with `from_pretrained`, acts in
+`mosaic-eval` (rows side by side, with the confusion matrix) and in `lerobot-eval --env.type=mosaic`, and
+`--help` shows the type's options; on tensors, every type has the same shapes in and out, follows its
+demonstration, refuses a demonstration set for other environments, and acts frame by frame as training computes.
+A type's own parts are tested in its own file."""
 
 import json
 import os
@@ -10,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, POLICY_TYPES, random_batch, small_config, small_flags
+from conftest import HEIGHT, IMAGE_KEY, POLICY_TYPES, WIDTH, random_batch, small_config, small_flags
 
 BIN = Path(sys.executable).parent
 BASELINES = [t for t in POLICY_TYPES if t != "mosaic"]
@@ -60,6 +63,8 @@ def test_every_policy_learns_a_fixed_batch_and_round_trips_through_from_pretrain
 
     policy.eval().save_pretrained(tmp_path / "ckpt")
     loaded = policy_class(policy_type).from_pretrained(tmp_path / "ckpt").eval()
+    original, reloaded = policy.state_dict(), loaded.state_dict()
+    assert original.keys() == reloaded.keys() and all(torch.equal(original[k], reloaded[k]) for k in original)
     chunks, frame = _chunks_after_one_demo(policy, loaded)
     for model in (policy, loaded):
         assert model.select_action(frame).shape == (2, 7)
@@ -164,7 +169,8 @@ def test_importing_the_package_registers_exactly_the_policy_types_with_lerobot()
 
     from mosaic_policy import policy_class
 
-    ours = [t for t in PreTrainedConfig.get_known_choices() if PreTrainedConfig.get_choice_class(t).__module__.startswith("mosaic_policy.")]
+    known = PreTrainedConfig.get_known_choices()
+    ours = [t for t in known if PreTrainedConfig.get_choice_class(t).__module__.startswith("mosaic_policy.")]
     assert sorted(ours) == sorted(POLICY_TYPES)
     with pytest.raises(ValueError, match="choose from mosaic, tosil"):
         policy_class("act")
@@ -264,3 +270,160 @@ def test_the_comparison_benchmark_prints_every_policy_as_a_ratio_to_mosaic(tmp_p
     rows = json.loads(output.read_text())["rows"]
     assert [row["policy"] for row in rows] == POLICY_TYPES
     assert all(row["parameters"] > 0 and row["train_step_s"] > 0 and row["query_ms"] > 0 for row in rows)
+
+
+# -- the same behaviour on tensors, every type ------------------------------------------------------------
+
+LOSSES = {
+    "mosaic": {"bc_loss", "inverse_loss", "contrastive_loss"},
+    "tosil": {"bc_loss", "inverse_loss", "point_loss"},
+    "lstm_osil": {"bc_loss", "inverse_loss"},
+    "mlp_osil": {"bc_loss", "inverse_loss"},
+    "daml": {"bc_loss", "adaptation_loss", "inner_lr"},
+}
+"""The figures each type's training step logs besides the total."""
+EMBEDDING_KINDS = [
+    ("mosaic", {}),
+    ("mosaic", {"attention_pattern": "full"}),
+    ("tosil", {}),
+    ("lstm_osil", {"lstm_dropout": 0.5}),  # dropout must be off when acting
+    ("mlp_osil", {}),
+]
+"""Types (and MOSAIC's full-attention ablation) whose heads read `model.observation_embeddings`; DAML's come from
+weights adapted per demonstration (tests/policy/test_daml.py)."""
+
+
+def _policy(policy_type: str, **overrides):
+    from mosaic_policy import policy_class
+
+    torch.manual_seed(0)
+    return policy_class(policy_type)(small_config(policy_type=policy_type, **overrides))
+
+
+def _frames(n_envs: int, n_frames: int, seed: int = 5) -> torch.Tensor:
+    return torch.rand(n_envs, n_frames, 3, HEIGHT, WIDTH, generator=torch.Generator().manual_seed(seed))
+
+
+def _same_distribution(actual, expected, atol: float = 1e-5) -> None:
+    for name in ("logit_probs", "means", "log_scales"):
+        torch.testing.assert_close(getattr(actual, name), getattr(expected, name), atol=atol, rtol=0)
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_shapes_through_the_model_and_the_policy(policy_type):
+    policy = _policy(policy_type)
+    config = policy.config
+    batch = random_batch(config)
+    assert policy.model.feature_shape == (256, 2, 4)
+    if policy_type != "daml":
+        embeddings = policy.model.observation_embeddings(policy.model.trunk, batch["demo_frames"], batch[IMAGE_KEY])
+        assert embeddings.shape == (4, config.train_obs_frames, config.embed_dim)
+        distribution = policy.model.action_distribution(embeddings, None)
+        assert distribution.means.shape == (4, config.train_obs_frames, 7 * config.action_chunk, config.n_mixtures)
+    policy.train()
+    loss, info = policy.forward(batch)
+    assert loss.dim() == 0 and loss.dtype == torch.float32 and torch.isfinite(loss)
+    assert set(info) - {"loss", "demo_wait_s"} == LOSSES[policy_type]
+    per_sample, _ = policy.forward(batch, reduction="none")
+    assert per_sample.shape == (4,)
+
+    policy.eval()
+    policy.reset()
+    policy.set_demo(torch.rand(config.n_demo_frames, 3, HEIGHT, WIDTH))  # one demo shared by 2 environments
+    observation = {IMAGE_KEY: torch.rand(2, 3, HEIGHT, WIDTH), "observation.state": torch.randn(2, 10)}
+    action = policy.select_action(observation)
+    assert action.shape == (2, 7) and action.dtype == torch.float32
+    assert policy.predict_action_chunk(observation).shape == (2, config.action_chunk, 7)
+    policy.reset()
+    assert not policy.has_demo
+    policy.set_demo(batch["demo_frames"][:2])  # one demo per environment
+    assert policy.predict_action_chunk(observation).shape == (2, config.action_chunk, 7)
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_a_demo_for_other_environments_is_a_clear_error(policy_type):
+    policy = _policy(policy_type).eval()
+    policy.set_demo(_frames(3, policy.config.n_demo_frames))
+    with pytest.raises(ValueError, match="one demonstration per environment"):
+        policy.predict_action_chunk({IMAGE_KEY: torch.rand(2, 3, HEIGHT, WIDTH)})
+    policy.reset()
+    policy.set_demo(_frames(1, policy.config.n_demo_frames))  # one for all: any number of environments
+    assert policy.predict_action_chunk({IMAGE_KEY: torch.rand(2, 3, HEIGHT, WIDTH)}).shape == (2, 2, 7)
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_use_state_feeds_the_robot_state_to_the_action_head(policy_type):
+    policy = _policy(policy_type, use_state=True)
+    loss, _ = policy.train().forward(random_batch(policy.config, batch_size=2))
+    assert torch.isfinite(loss)
+    policy.eval().set_demo(torch.rand(policy.config.n_demo_frames, 3, HEIGHT, WIDTH))
+    image = torch.rand(2, 3, HEIGHT, WIDTH)
+    with pytest.raises(ValueError, match="observation.state"):
+        policy.predict_action_chunk({IMAGE_KEY: image})
+    assert policy.predict_action_chunk({IMAGE_KEY: image, "observation.state": torch.randn(2, 10)}).shape == (2, 2, 7)
+    with torch.no_grad():
+        means = [policy.chunk_distribution(image, state, policy._context).means for state in torch.randn(2, 2, 10)]
+    assert not torch.equal(means[0], means[1])
+
+
+@pytest.mark.parametrize("policy_type", POLICY_TYPES)
+def test_actions_depend_on_the_demonstration(policy_type):
+    policy = _policy(policy_type, inner_lr=1.0) if policy_type == "daml" else _policy(policy_type)
+    policy.eval()  # DAML's large inner step: its demos' effect shows at initialisation
+    image = torch.rand(2, 3, HEIGHT, WIDTH)
+    shape = (1, policy.config.n_demo_frames, 3, HEIGHT, WIDTH)
+    means = []
+    for demo in (torch.zeros(shape), torch.zeros(shape), torch.ones(shape)):  # a dark demo twice, then a bright one
+        policy.reset()
+        policy.set_demo(demo)
+        with torch.no_grad():
+            means.append(policy.chunk_distribution(image, None, policy._context).means)
+    assert torch.equal(means[0], means[1])
+    # at initialisation the demo's effect is small but far above float rounding (about 1e-7)
+    assert (means[0] - means[2]).abs().max() > 1e-4
+
+
+@pytest.mark.parametrize("policy_type, options", EMBEDDING_KINDS)
+def test_acting_frame_by_frame_computes_what_training_computes(policy_type, options):
+    """Frame k acted on after frames 0..k-1 gets the distribution training gives the last frame of a sample of
+    the last train_obs_frames frames (policies with a memory of past frames remember that many query frames; the
+    others read the current frame alone, which training computes the same way). One demo for 2 environments;
+    a new episode forgets the frames; `select_action` queries once per chunk and hands out its targets in order."""
+    policy = _policy(policy_type, **options).eval()
+    t, chunk = policy.config.train_obs_frames, policy.config.action_chunk
+    demo = _frames(1, policy.config.n_demo_frames, seed=4)
+    frames = _frames(2, t + 2)  # more frames than a sample holds
+    policy.reset()
+    policy.set_demo(demo)
+    trunk = policy.trunk_for_inference()  # the BatchNorm-folded copy acting uses; the same on both sides here
+    with torch.no_grad():
+        expected = []
+        for k in range(t + 2):
+            window = frames[:, max(0, k - t + 1) : k + 1]
+            embeddings = policy.model.observation_embeddings(trunk, demo.expand(2, -1, -1, -1, -1), window)
+            expected.append(policy.model.action_distribution(embeddings[:, -1], None))
+        for k in range(t + 2):
+            _same_distribution(policy.chunk_distribution(frames[:, k], None, policy._context), expected[k])
+
+    policy.set_demo(demo)
+    for k in range(t + 2):
+        mode = expected[k].mode().reshape(2, chunk, 7)
+        for j in range(chunk):
+            torch.testing.assert_close(policy.select_action({IMAGE_KEY: frames[:, k]}), mode[:, j], atol=2 / 255, rtol=0)
+
+
+@pytest.mark.parametrize("policy_type, options", EMBEDDING_KINDS)
+def test_a_frame_never_sees_later_observation_frames(policy_type, options):
+    policy = _policy(policy_type, **options).eval()
+    batch = random_batch(policy.config, batch_size=2, seed=4)
+    obs = batch[IMAGE_KEY]
+    for t in range(obs.shape[1] - 1):
+        perturbed = obs.clone()
+        perturbed[:, t + 1] = torch.rand_like(perturbed[:, t + 1])
+        with torch.no_grad():
+            before, after = (
+                policy.model.observation_embeddings(policy.model.trunk, batch["demo_frames"], frames)
+                for frames in (obs, perturbed)
+            )
+        torch.testing.assert_close(after[:, : t + 1], before[:, : t + 1], atol=1e-6, rtol=0)
+        assert not torch.allclose(after[:, t + 1], before[:, t + 1], atol=1e-4)

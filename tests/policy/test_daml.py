@@ -1,10 +1,13 @@
-"""The DAML baseline end to end on tensors: shapes, learning, the inner step, the meta-gradient, acting, saving."""
+"""DAML's own parts on tensors: the inner step, the meta-gradient, acting with the adapted weights, its variants.
+What every type does (shapes, learning, checkpoints, demo conditioning) is tested once for all in
+test_all_policies.py."""
 
 import pytest
 import torch
 from conftest import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
 
 from mosaic_policy import DamlConfig
+from mosaic_policy.common.demo_conditioned_policy import expand_to_batch
 from mosaic_policy.common.paired_sampling import demo_frame_indices
 from mosaic_policy.daml.modeling_daml import DamlPolicy
 
@@ -68,27 +71,6 @@ def test_parameter_count_is_comparable_to_mosaics():
     assert 0.7 < count(daml) / count(mosaic) < 1.1, (count(daml), count(mosaic))
 
 
-def test_forward_and_acting_shapes(policy):
-    policy.train()
-    batch = random_batch(policy.config)
-    loss, info = policy.forward(batch)
-    assert loss.dim() == 0 and loss.dtype == torch.float32 and torch.isfinite(loss)
-    assert {"bc_loss", "adaptation_loss", "inner_lr"} <= set(info) and "inverse_loss" not in info
-    per_sample, _ = policy.forward(batch, reduction="none")
-    assert per_sample.shape == (4,)
-
-    policy.eval()
-    policy.reset()
-    policy.set_demo(batch["demo_frames"][:2])  # one demo per environment
-    assert policy.select_action(_frame(2)).shape == (2, 7)
-    assert policy.predict_action_chunk(_frame(2)).shape == (2, policy.config.action_chunk, 7)
-    with pytest.raises(ValueError, match="set_demo"):
-        policy.predict_action_chunk(_frame(3))
-    policy.reset()
-    policy.set_demo(_video(0))  # one demo shared by every environment
-    assert policy.predict_action_chunk(_frame(3)).shape == (3, policy.config.action_chunk, 7)
-
-
 def test_acting_matches_the_training_path(policy):
     """set_demo adapts under no_grad (torch.func takes the inner gradient anyway) to the weights training uses."""
     policy.eval()
@@ -104,23 +86,9 @@ def test_acting_matches_the_training_path(policy):
         torch.testing.assert_close(policy._context[name], tensor.detach(), atol=1e-4, rtol=1e-4)
     with torch.no_grad():
         obs = policy.model.frame_keypoints(policy.model.trunk, frame[IMAGE_KEY].unsqueeze(1))
-        embeddings = policy.adapted_embeddings(policy._for_batch(adapted, 2), obs)[:, 0]
+        embeddings = policy.adapted_embeddings(expand_to_batch(adapted, 2), obs)[:, 0]
         expected = policy.model.action_distribution(embeddings, None).mode().reshape(2, -1, 7)
     torch.testing.assert_close(policy.predict_action_chunk(frame), expected, atol=2 / 255, rtol=0)
-
-
-def test_loss_decreases_on_a_fixed_batch():
-    policy = _policy(augment=False).train()
-    batch = random_batch(policy.config)
-    optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
-    losses = []
-    for _ in range(30):
-        loss, _ = policy.forward(batch)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        losses.append(loss.item())
-    assert losses[-1] < 0.9 * losses[0], losses  # MOSAIC's BC loss falls as fast here
 
 
 def test_inner_step_adapts_copies_per_sample_and_leaves_the_parameters_alone(policy):
@@ -181,20 +149,6 @@ def test_second_order_terms_change_the_meta_gradient():
         loss.backward()
         grads[first_order] = policy.model.policy[0].weight.grad
     assert not torch.allclose(grads[False], grads[True])
-
-
-def test_different_demos_give_different_actions():
-    policy = _policy(inner_lr=1.0).eval()  # a large step: the demos' effect shows in the snapped actions
-    frame = _frame(2)
-    actions, means = [], []
-    for seed in (0, 1, 0):
-        policy.reset()
-        policy.set_demo(_video(seed))
-        actions.append(policy.predict_action_chunk(frame))
-        means.append(policy.chunk_distribution(*policy.current_inputs(frame), policy._context).means)
-    assert not torch.equal(means[0], means[1])
-    assert not torch.equal(actions[0], actions[1])
-    assert torch.equal(actions[0], actions[2])  # the same demo, the same actions
 
 
 @pytest.mark.parametrize(

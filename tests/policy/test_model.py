@@ -1,4 +1,7 @@
-"""The MOSAIC policy end to end on tensors: shapes, gradients, EMA target, inference with a cached demo, errors."""
+"""MOSAIC on tensors: its defaults and options, the attention streams, gradients and the EMA target, acting with
+a cached demo (and its attention weights), the loss balancing, errors. What every type does (shapes, learning,
+checkpoints, demo conditioning, acting as training computes, also with the full attention pattern) is tested
+once for all in test_all_policies.py."""
 
 import pytest
 import torch
@@ -44,23 +47,12 @@ def test_a_bad_vision_backbone_is_a_one_line_error_naming_the_choices():
     assert "resnet18" in message and "conv" in message and "--policy.vision_backbone=" in message
 
 
-def test_shapes_and_dtypes_through_the_model(policy):
+def test_the_attention_streams_keep_the_feature_maps(policy):
     batch = random_batch(policy.config)
     encoded = policy.model.encode(policy.model.trunk, policy.model.attention, batch["demo_frames"], batch[IMAGE_KEY])
     c, h, w = policy.model.feature_shape
-    assert (c, h, w) == (256, 2, 4)
-    assert encoded["demo_post"].shape == (4, c, 4, h, w)
-    assert encoded["obs_post"].shape == (4, c, 3, h, w)
-    embeddings = policy.model.frame_embeddings(encoded["obs_post"])
-    assert embeddings.shape == (4, 3, policy.config.embed_dim)
-    dist = policy.model.action_distribution(embeddings, batch["observation.state"])
-    assert dist.means.shape == (4, 3, 7 * policy.config.action_chunk, policy.config.n_mixtures)
-    policy.train()
-    loss, info = policy.forward(batch)
-    assert loss.dim() == 0 and loss.dtype == torch.float32 and torch.isfinite(loss)
-    assert {"bc_loss", "inverse_loss", "contrastive_loss"} <= set(info)
-    per_sample, _ = policy.forward(batch, reduction="none")
-    assert per_sample.shape == (4,)
+    for stream, frames in (("demo", 4), ("obs", 3)):
+        assert encoded[f"{stream}_pre"].shape == encoded[f"{stream}_post"].shape == (4, c, frames, h, w)
 
 
 def test_gradients_reach_every_trainable_parameter_and_none_reach_the_target(policy):
@@ -140,15 +132,6 @@ def test_wrong_image_size_is_a_clear_error(policy):
         policy.set_demo(torch.rand(4, 3, 100, 180))
 
 
-def test_save_and_load_round_trip_exactly(policy, tmp_path):
-    policy.save_pretrained(tmp_path)
-    loaded = MosaicPolicy.from_pretrained(tmp_path)
-    original, reloaded = policy.state_dict(), loaded.state_dict()
-    assert original.keys() == reloaded.keys()
-    assert all(torch.equal(original[k], reloaded[k]) for k in original)
-    assert loaded.config.n_attention_heads == policy.config.n_attention_heads
-
-
 @pytest.mark.parametrize(
     "overrides",
     [
@@ -190,29 +173,3 @@ def test_loss_is_averaged_per_variation():
     torch.testing.assert_close(weights, torch.tensor([1 / 6, 1 / 6, 1 / 6, 1 / 2]))
     loss, _ = policy.forward(batch)
     torch.testing.assert_close(loss, per_sample.mean(), rtol=1e-5, atol=1e-5)
-
-
-def test_the_full_attention_pattern_acts_and_acting_matches_training_frame_by_frame():
-    """attention_pattern=full (the ablation) used to train but refuse to act. Acting remembers the last query
-    frames; frame k's action distribution equals what training computes for frame k of a sample (causal: later
-    frames of the sample do not change it)."""
-    torch.manual_seed(0)
-    policy = MosaicPolicy(small_config(attention_pattern="full", contrastive="off", augment=False)).eval()
-    config = policy.config
-    batch = random_batch(config, batch_size=1)
-    demo, obs = batch["demo_frames"], batch[IMAGE_KEY]
-    with torch.no_grad():
-        encoded = policy.model.encode(policy.model.trunk, policy.model.attention, demo, obs)
-        trained = policy.model.action_distribution(policy.model.frame_embeddings(encoded["obs_post"]), None)
-        policy.reset()
-        policy.set_demo(demo[0])
-        for k in range(config.train_obs_frames):
-            acting = policy.chunk_distribution(obs[:, k], None, policy._context)
-            torch.testing.assert_close(acting.means, trained.means[:, k], atol=1e-4, rtol=1e-4)
-        perturbed = obs.clone()
-        perturbed[:, -1] = torch.rand_like(perturbed[:, -1])
-        again = policy.model.encode(policy.model.trunk, policy.model.attention, demo, perturbed)["obs_post"]
-        torch.testing.assert_close(again[:, :, :-1], encoded["obs_post"][:, :, :-1])
-    policy.reset()
-    policy.set_demo(demo[0])
-    assert policy.select_action({IMAGE_KEY: obs[:, 0]}).shape == (1, 7)

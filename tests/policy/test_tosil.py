@@ -1,8 +1,10 @@
-"""The T-OSIL policy on tensors: shapes, losses, causality, acting with a memory of past frames, save/load."""
+"""T-OSIL's own parts on tensors: the point head (its targets, loss, shapes and causality) and its defaults.
+What every type does (shapes, learning, checkpoints, demo conditioning, causality, acting with a memory of past
+frames as training computes) is tested once for all in test_all_policies.py."""
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
+from conftest import IMAGE_KEY, random_batch, small_config
 from lerobot.configs import FeatureType, PolicyFeature
 
 from mosaic_policy import TosilConfig
@@ -19,11 +21,6 @@ def policy() -> TosilPolicy:
     return TosilPolicy(tosil_config())
 
 
-def distribution_params(dist) -> torch.Tensor:
-    """(..., chunk * A, n_mixtures, 3): everything that defines a discretised logistic mixture."""
-    return torch.stack([dist.logit_probs, dist.means, dist.log_scales], dim=-1)
-
-
 def test_paper_defaults_and_lerobot_finds_the_policy():
     from lerobot.policies.factory import get_policy_class
 
@@ -34,23 +31,12 @@ def test_paper_defaults_and_lerobot_finds_the_policy():
     assert get_policy_class("tosil") is TosilPolicy
 
 
-def test_shapes_through_the_model(policy):
-    policy.train()
+def test_the_attended_feature_maps_and_the_point_head_shapes(policy):
     batch = random_batch(policy.config)
     c, h, w = policy.model.feature_shape
-    assert (c, h, w) == (256, 2, 4)
     obs_out = policy.model.encode(policy.model.trunk, batch["demo_frames"], batch[IMAGE_KEY])
     assert obs_out.shape == (4, c, 3, h, w)
-    embeddings = policy.model.frame_embeddings(obs_out)
-    assert embeddings.shape == (4, 3, policy.config.embed_dim)
-    dist = policy.model.action_distribution(embeddings, None)
-    assert dist.means.shape == (4, 3, 7 * policy.config.action_chunk, policy.config.n_mixtures)
     assert policy.model.point_head(obs_out).shape == (4, 3, 3)
-    loss, info = policy.forward(batch)
-    assert loss.dim() == 0 and torch.isfinite(loss)
-    assert {"bc_loss", "inverse_loss", "point_loss", "loss"} <= set(info) and "contrastive_loss" not in info
-    per_sample, _ = policy.forward(batch, reduction="none")
-    assert per_sample.shape == (4,)
 
 def test_spatial_soft_argmax_finds_the_peak():
     features = torch.full((1, 2, 5, 9), -50.0)
@@ -91,69 +77,20 @@ def test_loss_decreases_on_a_fixed_batch():
 
 
 @pytest.mark.parametrize("t", [0, 1])
-def test_a_frame_never_sees_later_observation_frames(policy, t):
+def test_the_point_head_never_sees_later_observation_frames(policy, t):
     policy.eval()
     batch = random_batch(policy.config, batch_size=2, seed=4)
     obs = batch[IMAGE_KEY]
     perturbed = obs.clone()
     perturbed[:, t + 1] = torch.rand_like(perturbed[:, t + 1])
-
-    def outputs(frames):
-        with torch.no_grad():
-            obs_out = policy.model.encode(policy.model.trunk, batch["demo_frames"], frames)
-            embeddings = policy.model.frame_embeddings(obs_out)
-            params = distribution_params(policy.model.action_distribution(embeddings, None))
-            return embeddings, params, policy.model.point_head(obs_out)
-
-    for before, after in zip(outputs(obs), outputs(perturbed), strict=True):
-        torch.testing.assert_close(after[:, : t + 1], before[:, : t + 1], atol=1e-6, rtol=0)
-        assert not torch.allclose(after[:, t + 1], before[:, t + 1], atol=1e-4)
-
-
-def test_acting_with_a_memory_equals_the_causal_training_computation(policy):
-    """Frame k acted on after frames 0..k-1 gets the distribution the training forward gives the last frame of
-    a sample of its last train_obs_frames frames (one demo set for a batch of 2 environments)."""
-    policy.eval()
-    g = torch.Generator().manual_seed(5)
-    demo = torch.rand(policy.config.n_demo_frames, 3, HEIGHT, WIDTH, generator=g)
-    frames = torch.rand(2, 5, 3, HEIGHT, WIDTH, generator=g)  # more frames than the memory holds (3)
-    policy.reset()
-    policy.set_demo(demo)
-    t_max = policy.config.train_obs_frames
-    # The acting trunk is the BatchNorm-folded copy (equal to float rounding); the same one on both sides here.
-    trunk = policy.trunk_for_inference()
-    expected = []
     with torch.no_grad():
-        for k in range(frames.shape[1]):
-            window = frames[:, max(0, k - t_max + 1) : k + 1]
-            obs_out = policy.model.encode(trunk, demo.expand(2, -1, -1, -1, -1), window)
-            dist = policy.model.action_distribution(policy.model.frame_embeddings(obs_out)[:, -1], None)
-            expected.append(dist)
-    with torch.no_grad():
-        for k in range(frames.shape[1]):
-            acted = policy.chunk_distribution(frames[:, k], None, policy._context)
-            torch.testing.assert_close(distribution_params(acted), distribution_params(expected[k]), atol=1e-5, rtol=0)
+        before, after = (
+            policy.model.point_head(policy.model.encode(policy.model.trunk, batch["demo_frames"], frames))
+            for frames in (obs, perturbed)
+        )
+    torch.testing.assert_close(after[:, : t + 1], before[:, : t + 1], atol=1e-6, rtol=0)
+    assert not torch.allclose(after[:, t + 1], before[:, t + 1], atol=1e-4)
 
-    policy.set_demo(demo)  # a new episode forgets the frames; select_action queries once per chunk
-    chunk = policy.config.action_chunk
-    for k in range(frames.shape[1]):
-        for j in range(chunk):
-            action = policy.select_action({IMAGE_KEY: frames[:, k]})
-            assert action.shape == (2, 7)
-            mode = expected[k].mode().reshape(2, chunk, 7)
-            torch.testing.assert_close(action, mode[:, j], atol=2 / 255, rtol=0)
-    assert policy.predict_action_chunk({IMAGE_KEY: frames[:, 0]}).shape == (2, chunk, 7)
-    policy.reset()
-    assert not policy.has_demo
-
-
-def test_a_demo_for_some_environments_does_not_fit_another_batch(policy):
-    policy.eval()
-    policy.reset()
-    policy.set_demo(torch.rand(2, 4, 3, HEIGHT, WIDTH))
-    with pytest.raises(ValueError, match="set_demo"):
-        policy.select_action({IMAGE_KEY: torch.rand(3, 3, HEIGHT, WIDTH)})
-    policy.reset()
 
 def test_point_loss_weight_zero_removes_the_point_loss():
     torch.manual_seed(0)
