@@ -22,6 +22,9 @@ IMAGE_HEIGHT = 100
 IMAGE_WIDTH = 180
 """The paper's camera size; datasets may be collected smaller (``--image-size``), a policy takes its dataset's."""
 STATE_DIM = 10
+STATE_NAMES = ("x", "y", "z", "r00", "r01", "r02", "r10", "r11", "r12", "gripper_opening")
+"""The components of ``observation.state``: grip-site position, the first two rows of its rotation matrix, and the
+gripper opening in [0, 1]."""
 ACTION_DIM = 7
 N_DEMO_FRAMES = 4
 """Frames of the demonstration a policy conditions on: first, last, one from each middle segment."""

@@ -22,11 +22,11 @@ from mosaic_data.constants import (  # noqa: F401  (CAMERA_KEY and FPS are impor
     IMAGE_WIDTH,
     STATE_DIM,
     STATE_KEY,
+    STATE_NAMES,
 )
 
 REPO_NAMESPACE = "mosaic"
 
-STATE_NAMES = ["x", "y", "z", "r00", "r01", "r02", "r10", "r11", "r12", "gripper_opening"]
 ACTION_NAMES = ["x", "y", "z", "rx", "ry", "rz", "gripper"]
 
 

@@ -13,7 +13,7 @@ from typing import Literal, get_args
 from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
 
-from mosaic_data.constants import N_DEMO_FRAMES
+from mosaic_data.constants import N_DEMO_FRAMES, STATE_NAMES
 
 from .run_progress import RunProgressSchedulerConfig
 
@@ -102,12 +102,17 @@ class DemoConditionedConfig(PreTrainedConfig):
     head_hidden_dim: int = 256
     # Concatenate the normalised robot state to the embedding in the action head (the paper: images only).
     use_state: bool = False
+    # With use_state: the state components the head reads, by name, e.g. [gripper_opening] (empty: all of them).
+    state_components: list[str] = field(default_factory=list)
     # Logistic mixture components per action dimension.
     n_mixtures: int = 3
     # Discretisation bins per action dimension over the normalised range [-1, 1].
     action_bins: int = 256
     # Inference: "mode" (mean of the most likely component) or "sample".
     action_sampling: str = "mode"
+    # Inference: query the policy every control step and average the targets its chunks give for that step, weight
+    # exp(-coeff * i) for the i-th oldest (ACT's temporal ensembling); unset: hand out each chunk's targets in turn.
+    temporal_ensemble_coeff: float | None = None
 
     # Weight of the behaviour-cloning loss (paper: 1).
     bc_loss_weight: float = 1.0
@@ -140,6 +145,9 @@ class DemoConditionedConfig(PreTrainedConfig):
                 f"`action_sampling` must be one of {ACTION_SAMPLING}, got {self.action_sampling!r}: "
                 "pass e.g. --policy.action_sampling=mode."
             )
+        unknown = [name for name in self.state_components if name not in STATE_NAMES]
+        if unknown:
+            raise ValueError(f"`state_components` {unknown} unknown: choose among {', '.join(STATE_NAMES)}.")
         if self.vision_backbone not in VISION_BACKBONES:
             raise ValueError(
                 f"`vision_backbone` must be one of {VISION_BACKBONES}, got {self.vision_backbone!r}: "

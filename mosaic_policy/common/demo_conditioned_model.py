@@ -22,6 +22,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from mosaic_data.constants import STATE_NAMES
+
 from .configuration_demo import DemoConditionedConfig
 from .discretized_logistic import DiscretizedLogisticHead, DiscretizedLogisticMixture
 from .frame_features import FrameEmbedding, trunk_features
@@ -50,6 +52,7 @@ class DemoConditionedModel(nn.Module):
         super().__init__()
         self.config = config
         self.state_dim = state_dim
+        self.state_indices = [STATE_NAMES.index(name) for name in config.state_components]  # empty: the whole state
         self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
@@ -86,5 +89,7 @@ class DemoConditionedModel(nn.Module):
         if self.state_dim:
             if state is None:
                 raise ValueError("use_state is on but the batch has no observation.state.")
+            if self.state_indices:
+                state = state[..., self.state_indices]
             embeddings = torch.cat([embeddings, state.reshape(*embeddings.shape[:-1], -1)], dim=-1)
         return self.action_head(embeddings)

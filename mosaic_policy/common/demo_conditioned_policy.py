@@ -120,7 +120,8 @@ class DemoConditionedPolicy(PreTrainedPolicy):
             color_jitter=config.color_jitter,
             blur_probability=config.blur_probability,
         )
-        self.build(self.image_hw, self.state_dim if config.use_state else 0, self.action_dim)
+        head_state_dim = (len(config.state_components) or self.state_dim) if config.use_state else 0
+        self.build(self.image_hw, head_state_dim, self.action_dim)
         if dataset_meta is not None:
             self.conditioning = DemoConditioning.for_training(config, dataset_meta, kwargs.get("agent_episodes"))
         else:
@@ -217,10 +218,24 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         return self._next_action(batch)
 
     def _next_action(self, batch: dict[str, Tensor]) -> Tensor:
+        if self.config.temporal_ensemble_coeff is not None:
+            return self._ensembled_action(batch)
         if not self._action_queue:
             chunk = self._act(batch)
             self._action_queue.extend(chunk.transpose(0, 1))  # (B, action_dim) per step
         return self._action_queue.popleft()
+
+    def _ensembled_action(self, batch: dict[str, Tensor]) -> Tensor:
+        """ACT's temporal ensembling: a new chunk every step; this step's target is the weighted mean of what every
+        chunk still covering it says, the oldest weighted most for a positive coefficient."""
+        self._action_queue.append(self._act(batch))  # (B, action_chunk, action_dim), newest last
+        while len(self._action_queue) > self.config.action_chunk:
+            self._action_queue.popleft()
+        n = len(self._action_queue)
+        targets = torch.stack([chunk[:, n - 1 - age] for age, chunk in enumerate(self._action_queue)])
+        weights = torch.exp(-self.config.temporal_ensemble_coeff * torch.arange(n, dtype=targets.dtype))
+        weights = weights.to(targets.device)[:, None, None]
+        return (targets * weights).sum(0) / weights.sum()
 
     def _ensure_demo(self, batch: dict[str, Tensor]) -> None:
         if self._context is not None:
