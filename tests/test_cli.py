@@ -40,7 +40,7 @@ def test_experts_writes_video_and_rerun(tmp_path):
     recording = tmp_path / "door.rrd"
     result = run_cli("experts", "--task", "door", "--robot", "sawyer", "--episodes", "1", "--variations", "0", "--rerun", str(recording))
     assert result.returncode == 0, result.stdout + result.stderr
-    from rerun_helpers import rows_per_entity
+    from tests.helpers.recordings import rows_per_entity
 
     rows = rows_per_entity(recording)
     assert rows["/camera"] > 10

@@ -1,9 +1,9 @@
-"""Shared fixture: one real, tiny collection (door, every variation, both robots, 1 episode each)."""
+"""Fixtures of the collection tests: one real, tiny collection (door, every variation, both robots, 1 episode each),
+the ``mosaic-data`` command in-process and the image size the collection used."""
 
 from __future__ import annotations
 
 import os
-import signal
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ["HF_HUB_OFFLINE"] = "1"
@@ -11,22 +11,7 @@ os.environ["WANDB_MODE"] = "disabled"
 
 import pytest  # noqa: E402
 
-TEST_IMAGE_SIZE = "56x96"
-"""Small images keep encoding cheap; the simulator, expert and horizon are the real ones."""
-
-
-def ctrl_c_reaches_it() -> None:
-    """``preexec_fn`` of a child process a test interrupts with SIGINT. A shell running the suite as a background job
-    (``bash .ci/run &``, ``nohup ... &``) starts its commands with SIGINT ignored, which every child inherits; Python
-    then never raises KeyboardInterrupt and the child goes on as if Ctrl-C had not been pressed. The child gets the
-    default disposition back, as in a terminal."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-def run_cli(*args: str) -> int:
-    from mosaic_data.cli import main
-
-    return main(list(args))
+from tests.helpers.collection import HEIGHT, TEST_IMAGE_SIZE, WIDTH, run_cli  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -49,5 +34,4 @@ def cli():
 
 @pytest.fixture(scope="session")
 def image_size() -> tuple[int, int]:
-    height, width = (int(n) for n in TEST_IMAGE_SIZE.split("x"))
-    return height, width
+    return HEIGHT, WIDTH

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from cli_errors import one_line_error
+from tests.helpers.cli_errors import one_line_error
 
 from mosaic_data import rollout
 from mosaic_data.action_noise import ActionNoise, parse_action_noise

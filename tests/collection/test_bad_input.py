@@ -8,7 +8,7 @@ import subprocess
 import sys
 
 import pytest
-from cli_errors import one_line_error
+from tests.helpers.cli_errors import one_line_error
 
 
 

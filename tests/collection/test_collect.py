@@ -10,9 +10,7 @@ from mosaic_data.collection.metadata import read_sidecar
 from mosaic_data.collection.plan import episode_seed
 from mosaic_data.collection.schema import CAMERA_KEY, dataset_features
 from mosaic_data.tasks import get_task_class
-
-TEST_IMAGE_SIZE = "56x96"  # as in conftest.py
-HEIGHT, WIDTH = 56, 96
+from tests.helpers.collection import HEIGHT, TEST_IMAGE_SIZE, WIDTH
 
 
 @pytest.mark.parametrize("robot", ["panda", "sawyer"])

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from cli_errors import one_line_error
+from tests.helpers.cli_errors import one_line_error
 
 from mosaic_data.collection.metadata import (
     CurrentEpisode,

@@ -15,7 +15,7 @@ from contextlib import redirect_stdout
 from pathlib import Path
 
 import pytest
-from cli_errors import one_line_error
+from tests.helpers.cli_errors import one_line_error
 
 from mosaic_data.collection.metadata import read_sidecar
 from mosaic_data.collection.plan import episode_seed

@@ -18,7 +18,7 @@ import pytest
 
 from mosaic_data.collection.metadata import read_sidecar
 
-from conftest import TEST_IMAGE_SIZE
+from tests.helpers.collection import TEST_IMAGE_SIZE
 
 RAY = str(Path(sys.executable).with_name("ray"))
 

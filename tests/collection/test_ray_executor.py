@@ -18,7 +18,7 @@ import pytest
 from mosaic_data.collection.metadata import read_sidecar
 from mosaic_data.collection.validate import validate_dataset
 
-from conftest import TEST_IMAGE_SIZE, ctrl_c_reaches_it
+from tests.helpers.collection import TEST_IMAGE_SIZE, ctrl_c_reaches_it
 
 ARGS = ["collect", "--task", "door", "--robot", "panda", "--episodes", "1", "--executor", "ray", "--workers", "2",
         "--image-size", TEST_IMAGE_SIZE, "--quiet"]

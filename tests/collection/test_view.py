@@ -14,7 +14,7 @@ import urllib.request
 
 import pytest
 
-from conftest import ctrl_c_reaches_it
+from tests.helpers.collection import ctrl_c_reaches_it
 
 
 def _view_command(door_output, *args: str) -> list[str]:

@@ -1,6 +1,8 @@
+"""Fixtures of the evaluation tests: small untrained MOSAIC and ACT checkpoints, written once per session."""
+
 import pytest
 
-from eval_helpers import write_tiny_act_checkpoint, write_tiny_checkpoint
+from tests.helpers.evaluation import write_tiny_act_checkpoint, write_tiny_checkpoint
 
 
 @pytest.fixture(scope="session")

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from cli_errors import one_line_error
-from video_damage import drop_last_frames, overwrite_middle
+from tests.helpers.cli_errors import one_line_error
+from tests.helpers.video_damage import drop_last_frames, overwrite_middle
 
 from pipelines.evaluation.cli import main as mosaic_eval
 
@@ -214,7 +214,7 @@ def test_an_incomplete_checkpoint_is_refused_before_rollouts(tmp_path, capsys, t
 
 
 def _demo_dataset(tmp_path: Path) -> tuple[Path, Path]:
-    from eval_helpers import write_demo_dataset
+    from tests.helpers.evaluation import write_demo_dataset
 
     root = write_demo_dataset(tmp_path / "door_sawyer", "door", [0, 1])
     (video,) = (root / "videos").rglob("*.mp4")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from eval_helpers import HEIGHT, WIDTH
+from tests.helpers.evaluation import HEIGHT, WIDTH
 
 
 def _env_config(**overrides):

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from rerun_helpers import rows_per_entity
+from tests.helpers.recordings import rows_per_entity
 
 from pipelines.evaluation.cli import main as mosaic_eval
 from pipelines.evaluation.intervals import interval_text, wilson_interval
@@ -186,7 +186,7 @@ def test_a_lerobot_train_run_folder_resolves_to_its_last_checkpoint(tmp_path, ti
 
 
 def test_demonstrations_from_a_dataset(tmp_path, capsys, tiny_checkpoint):
-    from eval_helpers import write_demo_dataset
+    from tests.helpers.evaluation import write_demo_dataset
 
     root = write_demo_dataset(tmp_path / "door_sawyer", "door", [1])
     common = [f"--policy.path={tiny_checkpoint}", "--task", "door", "--episodes-per-variation", "2", "--max-steps", "3",

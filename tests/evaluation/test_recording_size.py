@@ -4,8 +4,8 @@ of at most 1 MB per 100-step episode with attention (it was 14 MB at 100x180: ra
 from __future__ import annotations
 
 import numpy as np
-from eval_helpers import write_tiny_checkpoint
-from rerun_helpers import rows_per_entity
+from tests.helpers.evaluation import write_tiny_checkpoint
+from tests.helpers.recordings import rows_per_entity
 
 from mosaic_data.collection.schema import FPS
 from pipelines.evaluation.cli import main as mosaic_eval

@@ -20,7 +20,7 @@ from mosaic_data.constants import DEMO_RETRY_STRIDE, DEMO_SEED_OFFSET, MAX_EPISO
 from mosaic_data.demos import DEMO_ATTEMPTS
 from pipelines.evaluation.cli import main as mosaic_eval
 
-from eval_helpers import HEIGHT, WIDTH
+from tests.helpers.evaluation import HEIGHT, WIDTH
 
 BASE_SEED = 4242
 VARIATIONS = (0, 2)

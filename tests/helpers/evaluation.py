@@ -1,4 +1,5 @@
-"""Small policy checkpoints on disk (MOSAIC, ACT), written as lerobot-train writes them (config, weights, processors)."""
+"""Small policy checkpoints on disk (MOSAIC, ACT), written as lerobot-train writes them (config, weights, processors),
+and small demonstrator datasets for the evaluation tests."""
 
 from __future__ import annotations
 

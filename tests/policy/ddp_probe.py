@@ -22,13 +22,13 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))  # conftest's helpers
+sys.path.insert(0, str(Path(__file__).parents[2]))  # the repository root, for tests.helpers
 
-from conftest import read_variation_rank
 from safetensors.torch import save_file
 
 from mosaic_policy.common.demo_conditioned_policy import DemoConditionedPolicy
 from mosaic_policy.common.demo_conditioning import DemoConditioning
+from tests.helpers.policy import read_variation_rank
 
 RANK = int(os.environ.get("RANK", "0"))
 OUT = Path(os.environ["MOSAIC_DDP_PROBE_DIR"])

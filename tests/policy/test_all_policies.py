@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, POLICY_TYPES, WIDTH, random_batch, small_config, small_flags
+from tests.helpers.policy import HEIGHT, IMAGE_KEY, POLICY_TYPES, WIDTH, random_batch, small_config, small_flags
 
 BIN = Path(sys.executable).parent
 BASELINES = [t for t in POLICY_TYPES if t != "mosaic"]
@@ -180,7 +180,7 @@ def test_policies_are_models_no_simulator_and_no_command_line():
     """Building and running every policy type loads no simulator, and no policy reads the command line (the run's
     length, episodes and loss weights come through LeRobot's own channels and the shared conditioning layer)."""
     code = (
-        "import sys; import torch; from conftest import random_batch, small_config; "
+        "import sys; import torch; from tests.helpers.policy import random_batch, small_config; "
         "from mosaic_policy import POLICY_TYPES, policy_class\n"
         "for t in POLICY_TYPES:\n"
         "    config = small_config(policy_type=t)\n"
@@ -189,7 +189,7 @@ def test_policies_are_models_no_simulator_and_no_command_line():
         "assert not loaded, loaded\n"
     )
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
-    result = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parent, env=env, capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[2], env=env, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-2000:]
     package = Path(__file__).parents[2] / "mosaic_policy"
     for source in package.rglob("*.py"):

@@ -4,7 +4,7 @@ import math
 
 import pytest
 import torch
-from conftest import random_batch, small_config
+from tests.helpers.policy import random_batch, small_config
 
 from mosaic_policy.common.attention import NonLocalAttentionLayer, NonLocalAttentionStack, spatio_temporal_encoding
 from mosaic_policy.mosaic.contrastive import (

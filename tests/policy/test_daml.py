@@ -4,7 +4,7 @@ test_all_policies.py."""
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
+from tests.helpers.policy import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
 
 from mosaic_policy import DamlConfig
 from mosaic_policy.common.demo_conditioned_policy import expand_to_batch

@@ -1,7 +1,7 @@
 """The demonstration decides the action: a toy problem where only the demo tells which variation to do."""
 
 import torch
-from conftest import HEIGHT, IMAGE_KEY, WIDTH, small_config
+from tests.helpers.policy import HEIGHT, IMAGE_KEY, WIDTH, small_config
 
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import IMAGE_KEY
 from safetensors.torch import load_file
+
+from tests.helpers.policy import IMAGE_KEY
 
 LEROBOT_TRAIN = str(Path(sys.executable).parent / "lerobot-train")
 SMALL = [
@@ -124,7 +125,7 @@ def test_the_ema_schedule_follows_the_run_lerobot_train_reports_fine_tuning_rest
     it (no command line parsing). A fine-tuning run builds a new scheduler: the schedule restarts at the base
     momentum instead of the finished schedule's 1 (which froze the target encoder); --resume restores the
     scheduler's step count and the schedule ends at the new --steps."""
-    from conftest import small_config
+    from tests.helpers.policy import small_config
 
     from mosaic_policy.common.run_progress import RunProgressSchedulerConfig, run_progress
     from mosaic_policy.mosaic.contrastive import ema_momentum

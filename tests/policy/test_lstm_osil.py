@@ -4,7 +4,7 @@ once for all in test_all_policies.py."""
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, WIDTH, small_config
+from tests.helpers.policy import HEIGHT, IMAGE_KEY, WIDTH, small_config
 
 from mosaic_policy import LstmOsilConfig
 from mosaic_policy.lstm_osil.modeling_lstm_osil import LstmOsilPolicy

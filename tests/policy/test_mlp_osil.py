@@ -4,7 +4,7 @@ tested once for all in test_all_policies.py."""
 
 import pytest
 import torch
-from conftest import HEIGHT, WIDTH, small_config
+from tests.helpers.policy import HEIGHT, WIDTH, small_config
 
 from mosaic_policy import MlpOsilConfig
 from mosaic_policy.mlp_osil.modeling_mlp_osil import MlpOsilPolicy

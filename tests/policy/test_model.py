@@ -5,7 +5,7 @@ once for all in test_all_policies.py."""
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
+from tests.helpers.policy import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
 
 from mosaic_policy import MosaicConfig
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy

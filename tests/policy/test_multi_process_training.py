@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import IMAGE_KEY, POLICY_TYPES, read_variation_rank, small_flags, variation_description
 from safetensors.torch import load_file
 
 from lerobot.datasets import LeRobotDatasetMetadata
 from mosaic_policy.common import distributed
 from mosaic_policy.common.paired_sampling import PairedDemoSampler
+from tests.helpers.policy import IMAGE_KEY, POLICY_TYPES, read_variation_rank, small_flags, variation_description
 
 BIN = Path(sys.executable).parent
 PROBE = Path(__file__).parent / "ddp_probe.py"
@@ -231,7 +231,7 @@ def test_decode_threads_are_shared_among_the_processes_of_a_machine(monkeypatch)
 
 
 def test_outside_a_distributed_run_the_helpers_change_nothing():
-    from conftest import small_config
+    from tests.helpers.policy import small_config
 
     from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import torch
-from conftest import IMAGE_KEY, read_variation_rank, variation_description, write_dataset
+from tests.helpers.policy import IMAGE_KEY, read_variation_rank, variation_description, write_dataset
 
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
@@ -43,7 +43,7 @@ def test_each_sample_gets_a_demo_of_its_variation_from_another_instance(door_dat
 
 def test_policy_built_for_training_pairs_batches_from_lerobot(door_datasets):
     agent_root, demo_root = door_datasets
-    from conftest import small_config
+    from tests.helpers.policy import small_config
 
     dataset = LeRobotDataset(
         "mosaic/door_panda", root=agent_root, delta_timestamps={IMAGE_KEY: [0, 0.05, 0.1], "action": [0, 0.05, 0.1], "observation.state": [0, 0.05, 0.1]}
@@ -61,7 +61,7 @@ def test_missing_demo_dataset_is_a_clear_error(door_datasets, tmp_path):
     meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
     with pytest.raises(DemoDatasetError, match="not found"):
         PairedDemoSampler("mosaic/door_sawyer", tmp_path / "nowhere", IMAGE_KEY, 4, agent_meta=meta)
-    from conftest import small_config
+    from tests.helpers.policy import small_config
 
     with pytest.raises(ValueError, match="demo_repo_id"):
         MosaicPolicy(small_config(), dataset_meta=meta)
@@ -116,7 +116,7 @@ def test_a_fraction_of_the_agent_episodes_restricts_the_demonstrator_to_the_same
 def test_a_damaged_demonstrator_video_names_its_file_in_training(tmp_path, damage):
     """torchcodec says "Could not push packet to decoder" (or LeRobot a tolerance assertion for lost frames) with no
     path: the training run must name the file and the fix."""
-    from video_damage import drop_last_frames, overwrite_middle
+    from tests.helpers.video_damage import drop_last_frames, overwrite_middle
 
     agent = write_dataset(tmp_path / "door_panda", "mosaic/door_panda", [0, 1])
     demo = write_dataset(tmp_path / "door_sawyer", "mosaic/door_sawyer", [0, 1])

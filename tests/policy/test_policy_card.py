@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from conftest import HEIGHT, IMAGE_KEY, WIDTH, small_config
+from tests.helpers.policy import HEIGHT, IMAGE_KEY, WIDTH, small_config
 
 from mosaic_policy.common.model_card import eval_task_option
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy

@@ -4,7 +4,7 @@ frames as training computes) is tested once for all in test_all_policies.py."""
 
 import pytest
 import torch
-from conftest import IMAGE_KEY, random_batch, small_config
+from tests.helpers.policy import IMAGE_KEY, random_batch, small_config
 from lerobot.configs import FeatureType, PolicyFeature
 
 from mosaic_policy import TosilConfig
