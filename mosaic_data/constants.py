@@ -1,8 +1,8 @@
 """The conventions every part of the toolkit shares, in one place: feature keys, rates, sizes and seed rules.
 
 Datasets, policies, the gym environments and both evaluation front-ends (``mosaic-eval`` and ``lerobot-eval
---env.type=mosaic``) read these names instead of repeating literals. Standard library only: policies import it
-without loading the simulator.
+--env.type=mosaic``) read these names instead of repeating literals. Standard library only at import: policies
+import it without loading the simulator, and command lines without loading torch.
 """
 
 CAMERA_KEY = "observation.images.agentview"
@@ -28,6 +28,22 @@ gripper opening in [0, 1]."""
 ACTION_DIM = 7
 N_DEMO_FRAMES = 4
 """Frames of the demonstration a policy conditions on: first, last, one from each middle segment."""
+
+
+def policy_features(height: int = IMAGE_HEIGHT, width: int = IMAGE_WIDTH) -> dict:
+    """The ``input_features`` and ``output_features`` of a policy trained on a mosaic-data dataset of ``height`` x
+    ``width`` frames, as keyword arguments of a LeRobot policy config: ``MosaicConfig(**policy_features(h, w))``.
+    LeRobot is imported when this is called, not when this module is."""
+    from lerobot.configs import FeatureType, PolicyFeature
+
+    return {
+        "input_features": {
+            CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, height, width)),
+            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
+        },
+        "output_features": {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))},
+    }
+
 
 POLICY_TYPES: dict[str, str] = {
     "mosaic": "MOSAIC",

@@ -41,18 +41,10 @@ CHECKPOINT_SCRIPT = """
 import sys, torch
 from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
-from lerobot.configs import FeatureType, PolicyFeature
+from mosaic_data.constants import policy_features
 from pipelines.evaluation.agents import workspace_action_stats
 folder, height, width = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-config = MosaicConfig(
-    device="cpu",
-    input_features={
-        "observation.images.agentview": PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-        "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
-    },
-    output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
-    push_to_hub=False,
-)
+config = MosaicConfig(device="cpu", **policy_features(height, width), push_to_hub=False)
 torch.manual_seed(0)
 policy = MosaicPolicy(config)
 stats = workspace_action_stats() | {"observation.state": {"mean": torch.zeros(10), "std": torch.ones(10)}}

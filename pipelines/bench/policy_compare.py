@@ -19,9 +19,7 @@ from pathlib import Path
 
 import torch
 
-from lerobot.configs import FeatureType, PolicyFeature
-
-from mosaic_data.constants import ACTION_DIM, ACTION_KEY, CAMERA_KEY, STATE_DIM, STATE_KEY
+from mosaic_data.constants import CAMERA_KEY, STATE_DIM, STATE_KEY, policy_features
 from pipelines.bench.policy_train_step import peak_rss_gib, synthetic_batch
 
 
@@ -31,13 +29,7 @@ def default_config(policy_type: str, height: int, width: int):
     import mosaic_policy  # noqa: F401  (registers the types)
 
     return PreTrainedConfig.get_choice_class(policy_type)(
-        device="cpu",
-        input_features={
-            CAMERA_KEY: PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-            STATE_KEY: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
-        },
-        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))},
-        push_to_hub=False,
+        device="cpu", **policy_features(height, width), push_to_hub=False
     )
 
 

@@ -33,24 +33,21 @@ import time
 
 import torch
 
-from lerobot.configs import FeatureType, PolicyFeature
-
-from mosaic_data.constants import ACTION_DIM, ACTION_KEY, CAMERA_KEY, DEMO_FRAMES_KEY, STATE_DIM, STATE_KEY
+from mosaic_data.constants import (
+    ACTION_DIM,
+    ACTION_KEY,
+    CAMERA_KEY,
+    DEMO_FRAMES_KEY,
+    STATE_DIM,
+    STATE_KEY,
+    policy_features,
+)
 
 
 def paper_config(height: int, width: int, **overrides):
     from mosaic_policy import MosaicConfig
 
-    return MosaicConfig(
-        device="cpu",
-        input_features={
-            CAMERA_KEY: PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-            STATE_KEY: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
-        },
-        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))},
-        push_to_hub=False,
-        **overrides,
-    )
+    return MosaicConfig(device="cpu", **policy_features(height, width), push_to_hub=False, **overrides)
 
 
 def synthetic_batch(config, batch_size: int, height: int, width: int) -> dict:

@@ -22,7 +22,16 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import torch
 
-from mosaic_data.constants import ACTION_DIM, ACTION_KEY, CAMERA_KEY, IMAGE_HEIGHT, IMAGE_WIDTH, STATE_DIM, STATE_KEY
+from mosaic_data.constants import (
+    ACTION_DIM,
+    ACTION_KEY,
+    CAMERA_KEY,
+    IMAGE_HEIGHT,
+    IMAGE_WIDTH,
+    STATE_DIM,
+    STATE_KEY,
+    policy_features,
+)
 
 from .options import BASELINES, EvaluationError  # noqa: F401  (defined there: light enough for --help)
 
@@ -285,20 +294,11 @@ class PolicyAgent:
     @classmethod
     def _untrained(cls, spec: AgentSpec) -> PolicyAgent:
         """MOSAIC at initialisation (the paper's "No Training" row); actions are scaled to the workspace box."""
-        from lerobot.configs import FeatureType, PolicyFeature
-
         from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
         from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
         height, width = spec.image_hw
-        config = MosaicConfig(
-            device="cpu",
-            input_features={
-                CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, height, width)),
-                STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
-            },
-            output_features={ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))},
-        )
+        config = MosaicConfig(device="cpu", **policy_features(height, width))
         torch.manual_seed(0)  # the same untrained weights in every worker
         policy = MosaicPolicy(config)
         preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=workspace_action_stats())

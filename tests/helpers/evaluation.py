@@ -7,21 +7,10 @@ from pathlib import Path
 
 import torch
 
+from mosaic_data.constants import policy_features
+
 HEIGHT, WIDTH = 48, 88
 """A small camera: the environments render at the checkpoint's size."""
-
-
-def policy_features(height: int, width: int) -> dict:
-    """The input/output features of a policy trained on a mosaic-data dataset at ``height`` x ``width``."""
-    from lerobot.configs import FeatureType, PolicyFeature
-
-    return {
-        "input_features": {
-            "observation.images.agentview": PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
-        },
-        "output_features": {"action": PolicyFeature(FeatureType.ACTION, (7,))},
-    }
 
 
 def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH) -> Path:

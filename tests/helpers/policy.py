@@ -7,11 +7,10 @@ variation and which instance a decoded frame came from.
 
 import numpy as np
 import torch
-from lerobot.configs import FeatureType, PolicyFeature
 
 from mosaic_data import constants
 
-IMAGE_KEY = "observation.images.agentview"
+IMAGE_KEY = constants.CAMERA_KEY
 HEIGHT, WIDTH = 32, 56
 FPS = 20
 
@@ -94,11 +93,7 @@ def small_config(height=HEIGHT, width=WIDTH, policy_type="mosaic", **overrides):
 
     options = dict(
         device="cpu",
-        input_features={
-            IMAGE_KEY: PolicyFeature(FeatureType.VISUAL, (3, height, width)),
-            "observation.state": PolicyFeature(FeatureType.STATE, (10,)),
-        },
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
+        **constants.policy_features(height, width),
         train_obs_frames=3,
         frame_stride=2,
         action_chunk=2,
