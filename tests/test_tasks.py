@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import random
+
 import gymnasium
 import numpy as np
 import pytest
@@ -21,8 +23,18 @@ NON_GRASPING_MAX_HOLD = 2
 TASK_ROBOT = [(task, robot) for task in TASKS for robot in ROBOTS]
 
 
+VARIATIONS_PER_RUN = 2
+"""Variations per task and robot that the default run rolls out; `-m slow` runs every one of them."""
+
+
 def all_variations(task: str) -> list[int]:
     return [variation.index for variation in get_task_class(task).variations]
+
+
+def sampled_variations(task: str, robot: str) -> list[int]:
+    """A sample of the task's variations, the same in every run (seeded by task and robot)."""
+    variations = all_variations(task)
+    return sorted(random.Random(f"{task}/{robot}").sample(variations, min(VARIATIONS_PER_RUN, len(variations))))
 
 
 def robot_and_table_rows(env) -> tuple[float, float]:
@@ -43,9 +55,8 @@ def robot_and_table_rows(env) -> tuple[float, float]:
     return float(rows[robot_mask].mean()), float(rows[table_mask].mean())
 
 
-@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
-def test_every_variation_resets_and_renders_right_side_up(task_env_cache, task, robot):
-    for variation in all_variations(task):
+def check_resets_and_renders_right_side_up(task_env_cache, task: str, robot: str, variations: list[int]) -> None:
+    for variation in variations:
         env = task_env_cache(task, robot, variation)
         env.reset_to_seed(variation)
         image = env.render_agentview()
@@ -60,9 +71,20 @@ def test_every_variation_resets_and_renders_right_side_up(task_env_cache, task, 
 
 
 @pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
-def test_expert_succeeds_on_every_variation(task_env_cache, task, robot):
+def test_sampled_variations_reset_and_render_right_side_up(task_env_cache, task, robot):
+    check_resets_and_renders_right_side_up(task_env_cache, task, robot, sampled_variations(task, robot))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
+def test_every_variation_resets_and_renders_right_side_up(task_env_cache, task, robot):
+    check_resets_and_renders_right_side_up(task_env_cache, task, robot, all_variations(task))
+
+
+def check_expert_episodes(task_env_cache, task: str, robot: str, variations: list[int]) -> None:
+    """One expert episode per variation: success within the horizon, a continuous rotation chart, no long hold."""
     failures = []
-    for variation in all_variations(task):
+    for variation in variations:
         env = task_env_cache(task, robot, variation)
         episode = run_expert_episode(env, seed=1000 + variation)
         if not episode.success:
@@ -78,6 +100,17 @@ def test_expert_succeeds_on_every_variation(task_env_cache, task, robot):
             hold, step = longest_hold(episode.actions)
             assert hold <= NON_GRASPING_MAX_HOLD, f"{task}/{robot}/{variation}: holds still {hold} steps from step {step}"
     assert not failures, f"{task}/{robot}: expert failed on variations {failures}"
+
+
+@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
+def test_expert_succeeds_on_sampled_variations(task_env_cache, task, robot):
+    check_expert_episodes(task_env_cache, task, robot, sampled_variations(task, robot))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("task", "robot"), TASK_ROBOT)
+def test_expert_succeeds_on_every_variation(task_env_cache, task, robot):
+    check_expert_episodes(task_env_cache, task, robot, all_variations(task))
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
@@ -102,7 +135,19 @@ def test_action_rotation_is_the_turn_from_gripper_down(task_env_cache, robot):
 
 @pytest.mark.parametrize("task", list(TASKS))
 def test_another_variations_goal_is_not_success(task_env_cache, task):
-    """Pursue variation j's goal in variation i's scene: j's goal is reached, i's success never fires."""
+    """Pursue variation j's goal in variation i's scene: j's goal is reached, i's success never fires (two pairs
+    per task: the first variation with the last one sharing its scene, and the last with the first)."""
+    check_other_goals(task_env_cache, task, thorough=False)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", list(TASKS))
+def test_another_variations_goal_is_not_success_in_six_pairs(task_env_cache, task):
+    """The same for the first, middle and last variation, each with the first and last sharing its scene."""
+    check_other_goals(task_env_cache, task, thorough=True)
+
+
+def check_other_goals(task_env_cache, task: str, thorough: bool) -> None:
     n = len(get_task_class(task).variations)
 
     def initial_state(variation: int) -> np.ndarray:
@@ -113,12 +158,12 @@ def test_another_variations_goal_is_not_success(task_env_cache, task):
     # Some variations start from another scene state (a drawer to close starts open): pair each variation
     # with others whose scene starts exactly the same, the only setting where "another goal" is meaningful.
     pairs = []
-    for own in (0, n - 1, n // 2):
+    for own in (0, n - 1, n // 2) if thorough else (0, n - 1):
         own_state = initial_state(own)
         same_scene = [v for v in range(n) if v != own and np.array_equal(initial_state(v), own_state)]
         assert same_scene, f"no other variation of {task} shares variation {own}'s scene"
-        pairs += [(own, same_scene[0]), (own, same_scene[-1])]
-    for own, other in pairs:
+        pairs += [(own, same_scene[0]), (own, same_scene[-1])] if thorough else [(own, same_scene[-1 if own == 0 else 0])]
+    for own, other in dict.fromkeys(pairs):
         env = task_env_cache(task, "panda", own)
         env.reset_to_seed(7)
         expert = make_expert(env, variation=other)
@@ -252,9 +297,9 @@ def test_expert_success_table_over_20_seeds(task_env_cache, task, robot):
 
 def test_render_buffers_are_frame_sized_and_frames_unchanged(task_env_cache, monkeypatch):
     """The offscreen buffer is the frame's size and there is no shadow map while shadows are off (memory and the
-    per-frame clear); a scene built with MuJoCo's default buffers (640x480 and a 4096 shadow map, as before) draws
-    the very same pixels, on every task."""
-    import mosaic_data.tasks.base as task_base
+    per-frame clear); a scene built with MuJoCo's default buffers (640x480 and a 4096 shadow map) draws the very
+    same pixels, on every task."""
+    import mosaic_data.tasks.rendering as task_rendering
 
     for task in TASKS:
         env = task_env_cache(task, "panda", 0)
@@ -264,7 +309,7 @@ def test_render_buffers_are_frame_sized_and_frames_unchanged(task_env_cache, mon
         frame = env.render_agentview()
         assert frame.shape == (IMAGE_HEIGHT, IMAGE_WIDTH, 3)
         with monkeypatch.context() as patch:
-            patch.setattr(task_base, "size_render_buffers", lambda xml, *args, **kwargs: xml)
+            patch.setattr(task_rendering, "size_render_buffers", lambda xml, *args, **kwargs: xml)
             reference = make_task_env(task, 0, "panda")
         try:
             reference_context = reference.sim._render_context_offscreen.con
