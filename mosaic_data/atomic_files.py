@@ -11,9 +11,11 @@ writes its videos through ``tempfile`` too).
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 
 def current_umask() -> int:
@@ -68,3 +70,19 @@ def write_bytes_atomically(path: Path, content: bytes) -> None:
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+def json_default(value: Any) -> Any:
+    """What ``json.dumps`` writes for a value JSON has no type for: arrays and numpy numbers as lists and
+    numbers, sets and tuples as lists, anything else as its ``str``."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, (set, tuple)):
+        return list(value)
+    return str(value)
+
+
+def write_json_atomically(path: Path, content: dict[str, Any]) -> None:
+    """Write ``content`` as indented JSON (see :func:`json_default`) so that a reader (or a crash) never sees half
+    a file."""
+    write_bytes_atomically(path, (json.dumps(content, indent=2, default=json_default) + "\n").encode())

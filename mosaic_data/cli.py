@@ -1,7 +1,7 @@
 """``mosaic-data``: the data-side command line (task table, expert rollouts, dataset collection and tools).
 
-Exit status: 0 on success, 1 when experts miss their success target, a collection cannot finish or a dataset
-fails validation, 2 on bad input (one-line error), 130 when interrupted.
+Exit status (:mod:`mosaic_data.exit_status`): 0 on success, 1 when experts miss their success target, a collection
+cannot finish or a dataset fails validation, 2 on bad input (one-line error), 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from pathlib import Path
 
 from mosaic_data.cli_args import MAX_EPISODES, OneLineErrorParser, episode_count, non_negative_int, parse_int_list
 from mosaic_data.collection import CollectionError
+from mosaic_data.exit_status import ExitContract
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -119,22 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+EXIT = ExitContract("mosaic-data", bad_input=(ValueError, FileNotFoundError), failure=(CollectionError,))
+"""A collection that cannot finish (an expert gives up) is a failure, not a bad input."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    try:
-        args = build_parser().parse_args(argv)
-    except SystemExit as exit_request:  # a bad argument (printed, one line) or --help: a status, as for every error
-        return exit_request.code if isinstance(exit_request.code, int) else 0
-    try:
-        return args.func(args)
-    except (ValueError, FileNotFoundError) as error:
-        print(f"mosaic-data: error: {error}", file=sys.stderr)
-        return 2
-    except CollectionError as error:  # e.g. an expert that gives up during collection: not a bad input
-        print(f"mosaic-data: error: {error}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("mosaic-data: interrupted", file=sys.stderr)
-        return 130
+    return EXIT.main(build_parser(), argv, lambda args: args.func(args))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mosaic_data.rollout import run_expert_episode
-from mosaic_data.tasks.base import FrameState, MosaicTaskEnv
+from mosaic_data.tasks.base import MosaicTaskEnv
+from mosaic_data.tasks.rendering import FrameState
 
 DEMO_ATTEMPTS = 5
 """Seeds tried (``seed``, ``seed + retry_stride``, ...) before giving up on a demonstration; the experts are >= 95%."""

@@ -12,7 +12,8 @@ from mosaic_data.action_noise import ActionNoise
 from mosaic_data.collection.schema import ACTION_NAMES
 from mosaic_data.experts import make_expert
 from mosaic_data.tasks import make_task_env
-from mosaic_data.tasks.base import FrameState, MosaicTaskEnv
+from mosaic_data.tasks.base import MosaicTaskEnv
+from mosaic_data.tasks.rendering import FrameState
 
 SUCCESS_TARGET = 0.95
 """Fraction of successful expert episodes every variation must reach."""

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from mosaic_data.cli_args import action_noise, add_executor_arguments, episode_count, non_negative_int, parse_image_size, parse_int_list, positive_int
+from mosaic_data.exit_status import INTERRUPTED, Stopped
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
@@ -35,8 +36,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     try:
         report = collect(request, show_progress=not args.quiet)
     except KeyboardInterrupt:
-        print("mosaic-data: interrupted; finished shards are kept: run the same command again to resume", file=sys.stderr)
-        return 130
+        raise Stopped(INTERRUPTED, "interrupted; finished shards are kept: run the same command again to resume") from None
     for outcome in report.datasets:
         print(
             f"{outcome.repo_id}: {outcome.status}, {outcome.episodes} episodes, {outcome.frames} frames, "

@@ -22,10 +22,11 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.action_noise import ActionNoise
+from mosaic_data.atomic_files import write_json_atomically
 from mosaic_data.cli_args import ray_address_problem
 from mosaic_data.collection import CollectionError
 from mosaic_data.collection.merge import aggregate_into, check_replaceable, merge_datasets, remove_stale_work
-from mosaic_data.collection.metadata import build_sidecar, read_sidecar, write_json_atomically
+from mosaic_data.collection.metadata import build_sidecar, read_sidecar
 from mosaic_data.collection.plan import MAX_EPISODES, CollectionSettings, DatasetJob, ShardSpec
 from mosaic_data.collection.schema import (
     check_output_dir,

@@ -17,15 +17,8 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-from mosaic_data.collection.metadata import (
-    SidecarError,
-    align_sidecar,
-    current_episodes,
-    listed,
-    load_sidecar,
-    locate_sidecar,
-    variation_descriptions,
-)
+from mosaic_data.collection.episode_matching import align_sidecar, current_episodes, listed, variation_descriptions
+from mosaic_data.collection.metadata import SidecarError, load_sidecar, locate_sidecar
 from mosaic_data.collection.schema import ACTION_NAMES, CAMERA_KEY, schema_mismatch
 
 MAX_ACTION_JUMP = {"position": 0.1, "rotation": 0.5}

@@ -28,7 +28,8 @@ from urllib.parse import quote
 
 import numpy as np
 
-from mosaic_data.collection.metadata import listed, read_aligned_sidecar
+from mosaic_data.collection.episode_matching import listed
+from mosaic_data.collection.metadata import read_aligned_sidecar
 from mosaic_data.collection.schema import ACTION_NAMES, CAMERA_KEY, FPS, is_lerobot_dataset, repo_id_of
 
 OTHER_ROBOT = {"panda": "sawyer", "sawyer": "panda"}

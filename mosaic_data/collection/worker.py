@@ -77,9 +77,8 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
     """Collect the shard's successful episodes and commit it; returns what was written."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from mosaic_data.atomic_files import give_plain_modes
+    from mosaic_data.atomic_files import give_plain_modes, write_json_atomically
     from mosaic_data.collection.episode_saving import skip_needless_image_embedding
-    from mosaic_data.collection.metadata import write_json_atomically
     from mosaic_data.rollout import run_expert_episode
 
     skip_needless_image_embedding()

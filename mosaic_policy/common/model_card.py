@@ -155,10 +155,8 @@ def build_model_card(
     """The card of a demo-conditioned policy; ``card_context`` holds LeRobot's template values (training, dataset, ...)."""
     from huggingface_hub import ModelCard, ModelCardData
 
-    from mosaic_data.constants import OBS_DEMO_KEY
+    from mosaic_data.constants import OBS_DEMO_KEY, POLICY_TYPES
     from mosaic_data.tasks.spec import task_of_variation
-
-    from .. import POLICY_TYPES
 
     dataset = card_context.get("dataset") or None
     variations = list(dataset["tasks"]) if dataset else []

@@ -27,7 +27,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-import mosaic_data.tasks.base as task_base  # noqa: E402
+import mosaic_data.tasks.rendering as task_rendering  # noqa: E402
 from mosaic_data.tasks import TASKS, make_task_env  # noqa: E402
 
 
@@ -41,13 +41,13 @@ def resident_mb() -> float:
 
 def build(task: str, default_buffers: bool):
     """A scene of ``task`` built as the suite builds it, or with MuJoCo's default render buffers."""
-    sizing = task_base.size_render_buffers
+    sizing = task_rendering.size_render_buffers
     if default_buffers:
-        task_base.size_render_buffers = lambda xml, *args, **kwargs: xml
+        task_rendering.size_render_buffers = lambda xml, *args, **kwargs: xml
     try:
         env = make_task_env(task, 0, "panda")
     finally:
-        task_base.size_render_buffers = sizing
+        task_rendering.size_render_buffers = sizing
     env.reset_to_seed(7)
     env.render_agentview()
     return env

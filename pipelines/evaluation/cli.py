@@ -12,10 +12,10 @@ variation and per task (mean +- std, with the 95% Wilson interval of the rate an
 variation, writes JSON and Markdown (with a confusion matrix per task) and a heat map PNG per task, optionally
 a rerun recording with the policy's attention.
 
-Exit status: 0 when the evaluation ran, 2 on bad input (one line naming the fix), 1 when a rollout worker died
-(e.g. killed by the out-of-memory killer), 130 when interrupted. Every output path is checked before any work,
-and an evaluation that stops early writes the episodes that finished as a partial report (``"partial"`` in the
-JSON) and says so.
+Exit status (:mod:`mosaic_data.exit_status`): 0 when the evaluation ran, 2 on bad input (one line naming the fix),
+1 when a rollout worker died (e.g. killed by the out-of-memory killer), 130 when interrupted. Every output path is
+checked before any work, and an evaluation that stops early writes the episodes that finished as a partial report
+(``"partial"`` in the JSON) and says so.
 """
 
 from __future__ import annotations
@@ -39,15 +39,7 @@ from mosaic_data.cli_args import (  # noqa: E402
     parse_int_list,
     positive_int,
 )
-
-
-class _Stopped(Exception):
-    """The evaluation stopped part-way; ``message`` says why and where the finished episodes went."""
-
-    def __init__(self, code: int, message: str) -> None:
-        super().__init__(message)
-        self.code = code
-        self.message = message
+from mosaic_data.exit_status import BAD_INPUT, FAILURE, INTERRUPTED, ExitContract, Stopped  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -110,25 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from .options import EvaluationError
 
-    try:
-        args = build_parser().parse_args(argv)
-    except SystemExit as exit_request:  # a bad argument (printed, one line) or --help: a status, as for every error
-        return exit_request.code if isinstance(exit_request.code, int) else 0
-    try:
-        return run(args)
-    except EvaluationError as error:
-        print(f"mosaic-eval: error: {error}", file=sys.stderr)
-        return 2
-    except _Stopped as stopped:
-        print(f"mosaic-eval: {stopped.message}", file=sys.stderr)
-        return stopped.code
-    except KeyboardInterrupt:
-        print("mosaic-eval: interrupted", file=sys.stderr)
-        return 130
+    return ExitContract("mosaic-eval", bad_input=(EvaluationError,)).main(build_parser(), argv, run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from .options import EvaluationError, check_arguments
+    from .options import EvaluationError, WorkerDied, check_arguments
 
     check_arguments(args)  # a typo in --task: one line in a blink, before the seconds of the imports below
     from tqdm import tqdm
@@ -136,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from .plan import EvaluationPlan
     from .recording import EvaluationRecording
     from .report import check_output_paths, print_table, report_paths, summarize, timing, write_reports
-    from .runner import WorkerDied, in_plan_order, run_episodes
+    from .runner import in_plan_order, run_episodes
     from mosaic_data.ray_cluster import RayExecutorError
 
     output = args.output or Path("outputs/eval") / f"{dt.datetime.now():%Y-%m-%d/%H-%M-%S}_{args.task}" / "results.json"
@@ -183,11 +161,11 @@ def run(args: argparse.Namespace) -> int:
     except (KeyboardInterrupt, Exception) as error:
         kept = _keep_partial(in_plan_order(finished, plan.episodes), len(plan.episodes), error, json_path, report_of)
         if isinstance(error, KeyboardInterrupt):
-            raise _Stopped(130, f"interrupted; {kept}") from None
+            raise Stopped(INTERRUPTED, f"interrupted; {kept}") from None
         if isinstance(error, WorkerDied):
-            raise _Stopped(1, f"error: {error}; {kept}; run it again, with fewer --workers if memory is short") from None
+            raise Stopped(FAILURE, f"error: {error}; {kept}; run it again, with fewer --workers if memory is short") from None
         if isinstance(error, (EvaluationError, RayExecutorError)):
-            raise _Stopped(2, f"error: {error}; {kept}") from None
+            raise Stopped(BAD_INPUT, f"error: {error}; {kept}") from None
         print(f"mosaic-eval: {kept}", file=sys.stderr)
         raise
     finally:

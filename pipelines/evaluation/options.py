@@ -1,4 +1,4 @@
-"""Choices, defaults and the input error of ``mosaic-eval``, importable without torch, LeRobot or the simulator.
+"""Choices, defaults and the errors of ``mosaic-eval``, importable without torch, LeRobot or the simulator.
 
 ``mosaic-eval --help`` (and a bad option) needs only these; the modules that use them (agents, rollouts)
 import them from here, so there is one definition and the help costs no heavy import.
@@ -14,8 +14,17 @@ BASELINES: tuple[str, ...] = ("expert", "untrained")
 """Sanity rows the evaluation can produce without a checkpoint."""
 
 
+POLL_S = 0.5
+"""How often an executor (local worker processes or Ray) looks for finished episodes and dead workers while it waits."""
+
+
 class EvaluationError(ValueError):
     """Bad evaluation input (checkpoint, task, variations, demo dataset): the message names the fix."""
+
+
+class WorkerDied(RuntimeError):
+    """An evaluation worker ended without reporting its episode (killed, e.g. by the out-of-memory killer, crashed,
+    or a Ray worker or node lost)."""
 
 
 def check_arguments(args: argparse.Namespace) -> dict[str, list[int]]:

@@ -19,12 +19,12 @@ from mosaic_data.ray_cluster import MAX_RETRIES, WorkerResources, cluster_cpus, 
 
 from .agents import AgentSpec
 from .demo_sources import DemoSourceSpec
+from .options import POLL_S, WorkerDied
 from .rollouts import EpisodeResult, EpisodeSpec, RolloutWorker
 
 EVAL_WORKER = WorkerResources(num_cpus=1, memory_gb=2.0)
 """One thread of torch and of the software renderer. Memory measured: 2.0 GB peak for one process evaluating an
 untrained MOSAIC at 100x180 (imports, policy, the agent's scene and the demonstrator's)."""
-POLL_S = 0.5
 
 _worker: tuple[str, RolloutWorker] | None = None
 """The Ray worker process's rollout worker and the evaluation it belongs to (agents and scenes are kept)."""
@@ -50,8 +50,6 @@ def results_on_ray(
 ) -> Iterator[EpisodeResult]:
     """Yield the results of ``specs`` as Ray finishes them, at most ``workers`` episodes at a time (None: one per
     cluster CPU)."""
-    from .runner import WorkerDied
-
     with ray_session(address) as ray:
         limit = max(1, min(workers or cluster_cpus(ray), len(specs)))
         if on_workers is not None:

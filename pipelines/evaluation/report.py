@@ -23,8 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from mosaic_data.atomic_files import write_bytes_atomically
-from mosaic_data.collection.metadata import write_json_atomically
+from mosaic_data.atomic_files import write_bytes_atomically, write_json_atomically
 from mosaic_data.recording_files import check_folder_takes_file
 
 from .options import EvaluationError

@@ -26,15 +26,10 @@ from mosaic_data.process_env import scoped_environment, stop_processes
 
 from .agents import AgentSpec
 from .demo_sources import DemoSourceSpec
+from .options import POLL_S, WorkerDied
 from .rollouts import EpisodeResult, EpisodeSpec, RolloutWorker
 
 THREAD_VARIABLES = ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-POLL_S = 0.5
-"""How often the parent looks for dead workers while it waits for results."""
-
-
-class WorkerDied(RuntimeError):
-    """A rollout worker process ended without reporting (killed, e.g. by the out-of-memory killer, or crashed)."""
 
 
 def run_episodes(
@@ -135,9 +130,9 @@ def _on_workers(
         for reader in readers:
             reader.close()
         tasks.cancel_join_thread()
-        # End the queue's feeder thread now. Left running, it held the queue's semaphore until the interpreter shut
-        # down, and freeing it from that thread then could unlink it without telling the resource tracker, which
-        # printed "leaked semaphore" warnings after our last line (seen after a worker was killed).
+        # End the queue's feeder thread now: left running, it holds the queue's semaphore until the interpreter shuts
+        # down, and freeing it from that thread can unlink it without telling the resource tracker, which then
+        # prints "leaked semaphore" warnings after the command's last line (after a worker is killed, say).
         tasks.close()
 
 

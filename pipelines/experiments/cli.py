@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from mosaic_data.cli_args import parse_image_size
+from mosaic_data.exit_status import ExitContract
 
 from .presets import PRESETS, ExperimentError, ExperimentPreset, check_tasks, resolve_preset
 from .recipes import RECIPES, Plan, build_plan, check_episode_layout
@@ -199,8 +200,21 @@ def list_recipes() -> int:
     return 0
 
 
+EXIT = ExitContract(
+    "mosaic-experiment", bad_input=(ExperimentError,), failure=(StageFailed,),
+    bad_input_line="{command}: {error}",
+    failure_line="{error}\n{command}: fix the cause and run the same command again: finished stages are kept",
+    interrupted_line="\n{command}: interrupted; run the same command again to resume",
+)
+"""A failed stage's message names its log; a run resumes where it stopped, so the lines say to run it again."""
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    return EXIT.run(lambda: _command(args))
+
+
+def _command(args: argparse.Namespace) -> int:
     try:
         if args.command == "list":
             return list_recipes()
@@ -209,16 +223,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"results: {paths['markdown']} (and results.json, figures/)")
             return 0
         return run(args)
-    except ExperimentError as error:
-        print(f"mosaic-experiment: {error}", file=sys.stderr)
-        return 2
-    except StageFailed as error:
-        print(f"{error}\nmosaic-experiment: fix the cause and run the same command again: finished stages are kept",
-              file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("\nmosaic-experiment: interrupted; run the same command again to resume", file=sys.stderr)
-        return 130
     except BrokenPipeError:  # `mosaic-experiment run ... --dry-run | head`: the reader has all it wanted
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

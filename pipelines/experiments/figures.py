@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from .report import CellResult
+    from .results import CellResult
 
 
 def _pyplot():

@@ -18,12 +18,10 @@ from pathlib import Path
 import pytest
 from tests.helpers.cli_errors import one_line_error
 
+from mosaic_data.collection.episode_matching import CurrentEpisode, align_sidecar, listed
 from mosaic_data.collection.metadata import (
-    CurrentEpisode,
     SidecarError,
-    align_sidecar,
     build_sidecar,
-    listed,
     load_sidecar,
     read_aligned_sidecar,
     read_sidecar,

@@ -322,7 +322,8 @@ def test_a_worker_still_exiting_after_its_last_episode_is_not_taken_for_dead():
 def test_a_worker_gone_mid_episode_is_reported_dead():
     from multiprocessing import Pipe
 
-    from pipelines.evaluation.runner import WorkerDied, _collect
+    from pipelines.evaluation.options import WorkerDied
+    from pipelines.evaluation.runner import _collect
 
     reader, writer = Pipe(duplex=False)
     writer.send(("start", None))

@@ -13,7 +13,7 @@ from pipelines.evaluation.rollouts import EpisodeResult
 from pipelines.experiments import cli
 from pipelines.experiments.presets import resolve_preset
 from pipelines.experiments.recipes import build_plan
-from mosaic_data.collection.metadata import write_json_atomically
+from mosaic_data.atomic_files import write_json_atomically
 
 
 def _results_file(path, task, successes_per_variation, achieved=None):
