@@ -118,3 +118,21 @@ def random_batch(config, batch_size=4, height=HEIGHT, width=WIDTH, seed=0):
         "demo_frames": torch.rand(batch_size, d, 3, height, width, generator=g),
         "task": [variation_description(i % 2) for i in range(batch_size)],
     }
+
+
+def lerobot_train_help(policy_type: str) -> str:
+    """What ``lerobot-train --policy.type=X --help`` prints, through LeRobot's own scoped-help parser in this
+    process (a subprocess would spend most of its time importing LeRobot; the real command's plugin discovery is
+    exercised by the lerobot-train runs of the suite)."""
+    import contextlib
+    import io
+
+    from lerobot.configs.parser import print_scoped_help
+    from lerobot.configs.train import TrainPipelineConfig
+
+    import mosaic_policy  # noqa: F401  (registers the types, as the plugin does inside lerobot-train)
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        print_scoped_help(TrainPipelineConfig, [f"--policy.type={policy_type}", "--help"])
+    return out.getvalue()
