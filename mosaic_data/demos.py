@@ -9,8 +9,8 @@ episode's length (first, last, middle-segment centres), which is known only at i
 without a camera, keeping for every step what that step's frame would show (:class:`FrameState`: the joint positions
 the kinematics were last computed from and the model's colours, a few hundred numbers), and at the end only the
 picked frames are rendered from those (:meth:`MosaicTaskEnv.render_frame_states`), bit for bit the frames a camera
-would have taken during the run (tested). It used to run the expert twice, a probe for the length then a replay of
-the same seed rendering the picked frames: one expert pass saves about a sixth of an evaluation episode's time.
+would have taken during the run (tested). One expert pass per attempt: no second run of the same seed to render the
+picked frames (the time this saves is in the README's speed section).
 When every frame is wanted (a recording shows the whole demonstration) they are rendered during the pass.
 """
 

@@ -161,7 +161,7 @@ class MosaicGymEnv(gym.Env):
     # ------------------------------------------------------------------ the simulator, built on first use
     @property
     def task_env(self) -> MosaicTaskEnv:
-        """The robosuite scene; the first access builds it (1-3 s) in the process that uses it."""
+        """The robosuite scene; the first access builds it (seconds) in the process that uses it."""
         if self._task_env is None:
             if _GL_INHERITED:
                 raise RuntimeError(

@@ -21,7 +21,7 @@ import numpy as np
 from mosaic_data.atomic_files import plain_file_mode
 
 JPEG_QUALITY = 80
-"""Camera frames in recordings: 100x180 frames take about 4 KB instead of 54 KB raw, hard to tell apart."""
+"""JPEG quality of camera frames in recordings: a small fraction of a raw frame's bytes, hard to tell apart."""
 
 
 def check_output_file(path: Path, suffix: str, option: str, example: str) -> None:

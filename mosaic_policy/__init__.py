@@ -38,8 +38,8 @@ __all__ = [
 
 
 def policy_class(policy_type: str) -> type:
-    """The policy class of a type of this package, found as LeRobot's factory finds it (its modeling module is
-    imported now)."""
+    """The policy class of a type of this package, found as LeRobot's factory finds it (importing its modeling
+    module on the call)."""
     from lerobot.policies.factory import get_policy_class
 
     if policy_type not in POLICY_TYPES:

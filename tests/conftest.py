@@ -15,7 +15,7 @@ from mosaic_data.tasks import make_task_env  # noqa: E402
 
 @pytest.fixture(scope="session")
 def task_env_cache():
-    """Building a scene costs 1-3 s; tests share one env per (task, robot) and switch variations on it."""
+    """Building a scene takes seconds; tests share one env per (task, robot) and switch variations on it."""
     cache = {}
 
     def get(task: str, robot: str, variation: int = 0):

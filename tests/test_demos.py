@@ -1,6 +1,6 @@
 """Evaluation's demonstrations in one expert pass: the frames rendered afterwards from the kept per-step states are
-bit for bit the frames a camera took during the run (what the old probe-then-replay rendered), and a
-demonstration is the old two-pass one, field for field, with the expert run once per attempt."""
+bit for bit the frames a camera took during the run (what a probe-then-replay renders), and a demonstration is the
+two-pass reference's, field for field, with the expert run once per attempt."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ SEED = 50_000
 def test_kept_frame_states_render_the_frames_the_camera_took(task_env_cache, task):
     """The first frame (after the reset), the last one a demonstration has, the one after the last action and two in
     between; pick_place, nut_assembly and stack_block move free objects, press_button lights a lamp (a model colour)
-    during the episode. (A frame costs ~0.1 s on a loaded CPU: a few of them, not all.)"""
+    during the episode. (Rendering is slow on a loaded CPU: a few frames, not all.)"""
     env = task_env_cache(task, DEMONSTRATOR)
     length = run_expert_episode(env, SEED).length
     steps = {0, 1, length // 2, length - 1, length}
@@ -35,8 +35,8 @@ def test_kept_frame_states_render_the_frames_the_camera_took(task_env_cache, tas
 
 
 def two_pass_demonstration(env, seed, pick_frames, attempts, retry_stride) -> Demonstration:
-    """The demonstration as it was made before the single pass (kept here as the reference): the expert runs without
-    a camera to learn the length, then the same seed is replayed rendering the picked frames."""
+    """The reference demonstration in two passes: the expert runs without a camera to learn the length, then the
+    same seed is replayed rendering the picked frames."""
     for attempt in range(attempts):
         demo_seed = seed + retry_stride * attempt
         probe = run_expert_episode(env, demo_seed)
@@ -71,7 +71,7 @@ def test_a_demonstration_is_the_two_pass_one_with_one_expert_pass_per_attempt(ta
 
     experts.clear()
     reference = two_pass_demonstration(env, SEED, pick, attempts=5, retry_stride=7)
-    assert len(experts) == 3, "the reference is the old two passes"
+    assert len(experts) == 3, "the reference runs two passes"
     assert (demo.seed, demo.length, demo.attempts) == (reference.seed, reference.length, reference.attempts)
     assert (demo.seed, demo.attempts) == (SEED + 7, 2)
     assert (demo.task, demo.robot, demo.variation) == (reference.task, reference.robot, reference.variation)

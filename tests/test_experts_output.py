@@ -48,7 +48,7 @@ def test_unwritable_output_folder_fails_before_any_rollout(capsys):
 
 
 def test_episode_count_is_bounded(capsys):
-    # Before: a list of 10^9 seeds was built (and rolled out) before anything was said.
+    # Refused up front, not after building (and rolling out) a list of 10^9 seeds.
     try:
         status = main(["experts", "--task", "door", "--episodes", "1000000000"])
     except SystemExit as exit_request:  # argparse's refusal, whether or not main turns it into a status
@@ -68,7 +68,7 @@ def _episodes(height: int, width: int, steps: int = 3) -> list[Episode]:
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # imageio's writer, closed by GC
 def test_a_video_that_cannot_be_encoded_leaves_no_file(tmp_path):
-    # H.264 cannot encode odd frame sizes: the encoder fails after the file was opened (before: a 0-byte mp4).
+    # H.264 cannot encode odd frame sizes: the encoder fails after the file was opened, and no 0-byte mp4 is left.
     with pytest.raises(Exception):
         write_video(tmp_path / "door.mp4", _episodes(101, 181))
     assert list(tmp_path.iterdir()) == []

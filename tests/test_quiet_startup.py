@@ -43,7 +43,8 @@ def loaded_after(code: str) -> set[str]:
 
 
 def test_harmless_robosuite_import_warnings_are_gone_and_real_ones_print_once():
-    """Under a root handler (as LeRobot and our workers set up) robosuite's records used to print twice."""
+    """Under a root handler (as LeRobot and our workers set up) robosuite's real warnings print once, and its
+    harmless import-time notices not at all."""
     result = run_python(
         """
         import logging
@@ -103,9 +104,9 @@ def test_help_texts_load_no_heavy_module():
 
 
 def test_bad_arguments_are_refused_before_the_heavy_imports(tmp_path):
-    """``collect --task doorr`` took 7-8 s to say the task is unknown (LeRobot's writer was loaded first), and
-    ``mosaic-eval`` loaded torch and the simulator for it: task names, variations, the output folder and the Ray
-    address are plain data, checked first. One fresh interpreter runs every case."""
+    """Task names, variations, the output folder and the Ray address are plain data, checked before LeRobot's
+    writer, torch or the simulator is imported: ``collect --task doorr`` and ``mosaic-eval`` with a bad task answer
+    at once. One fresh interpreter runs every case."""
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
     cases = [

@@ -246,7 +246,7 @@ def test_render_returns_the_observation_frame_without_rendering_again():
 
 def test_a_scene_renders_its_own_frames_while_another_scene_is_alive():
     """An evaluation worker holds the agent's scene and the demonstrator's; robosuite renders in the current GL
-    context, which was the newest scene's, so the older scene's frames came out through the wrong camera."""
+    context, the newest scene's, yet each scene's frames come out through its own camera."""
     first = make_task_env("door", 0, "panda", image_height=48, image_width=88)
     first.reset_to_seed(3)
     before = first.render_agentview()

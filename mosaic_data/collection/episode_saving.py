@@ -3,8 +3,8 @@
 LeRobot's writer runs ``datasets.Dataset.map(embed_table_storage, batched=False)`` on every saved episode
 (``lerobot.datasets.io_utils.embed_images``) so that ``Image`` columns carry their bytes into the parquet file.
 Our datasets store the camera as video, so no column has anything to embed, yet the map still visits the
-episode one row at a time and rebuilds the schema for each: about 0.4 s per 66-frame episode on one core,
-6 ms a frame, 15% of what the simulator and renderer cost per frame. :func:`skip_needless_image_embedding`
+episode one row at a time and rebuilds the schema for each (its cost per frame is in the README's speed
+section). :func:`skip_needless_image_embedding`
 makes the writer skip that pass exactly when no feature needs embedding (``datasets``' own
 ``require_storage_embed`` test); a dataset with image columns goes through LeRobot's code unchanged. The
 parquet files hold the same tables and schema; only the cache fingerprint that ``map`` leaves in the schema's

@@ -27,7 +27,8 @@ from mosaic_data.ray_cluster import (
 )
 
 COLLECT_WORKER = WorkerResources(num_cpus=1, memory_gb=2.0)
-"""Measured peak: 1.7-1.9 GB per collection worker (imports about 1 GB, one scene about 0.5 GB)."""
+"""What Ray reserves per collection worker: above a worker's peak resident memory (imports and one scene; the
+measured figure is in the README's "Speed and memory per frame")."""
 POLL_S = 0.5
 
 _environments: EnvironmentCache | None = None

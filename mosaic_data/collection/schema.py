@@ -80,7 +80,7 @@ def merged_repo_id_for(robot: str) -> str:
 def default_output_dir() -> Path:
     """LeRobot's dataset home, read at call time so that ``HF_LEROBOT_HOME`` set in tests is honoured.
 
-    Once LeRobot is loaded its own value counts (it reads the variable once, at import); before, the same rule
+    Once LeRobot is loaded its own value counts (it reads the variable once, at import); until then the same rule
     (``$HF_LEROBOT_HOME``, else ``$HF_HOME/lerobot``) is applied here, because importing LeRobot for it costs
     seconds (torch) and a command checks its output folder before any heavy import.
     """

@@ -21,7 +21,7 @@ Conventions shared by every task (the same for the Panda agent and the Sawyer de
 * Camera ``agentview``: 100 x 180 (H x W) RGB, right side up. Rendered only when asked for, because on a
   CPU the renderer costs most of a step. ``fast_render`` (default) turns off shadows, reflections and the
   skybox, and ``visual_face_budget`` (default 800, None = robosuite's meshes) renders the robots' detailed
-  visual meshes from simplified copies: 2-3x faster frames, the same physics (``render_meshes``). The rendering
+  visual meshes from simplified copies: faster frames (README), the same physics (``render_meshes``). The rendering
   half of the environment (camera, render buffers, frames drawn after the fact) is :mod:`.rendering`.
 """
 

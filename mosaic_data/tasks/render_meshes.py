@@ -27,9 +27,9 @@ import numpy as np
 from mosaic_data.atomic_files import write_bytes_atomically
 
 VISUAL_FACE_BUDGET = 800
-"""Faces a visual mesh is first simplified to; doubled until the surface is within ``TOLERANCE_M``. On a door
-episode at 100x180: Panda 170k -> 53k visual faces, render 52 -> 23 ms; Sawyer 296k -> 105k, 85 -> 33 ms (one
-thread); mean absolute pixel difference 0.6-1.2 of 255, along silhouette edges."""
+"""Faces a visual mesh is first simplified to; doubled until the surface is within ``TOLERANCE_M``. Frames differ
+from those of robosuite's meshes only along silhouette edges (the speed-up is in the README, "Rendering on a
+CPU")."""
 TOLERANCE_M = 0.005
 """Largest distance (99th percentile) from an original vertex to the simplified surface: under a pixel of the
 100x180 camera at the robot (~1 cm), and enough to keep the Sawyer's layered shells from showing through."""

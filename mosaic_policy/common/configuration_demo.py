@@ -36,31 +36,9 @@ class DemoConditionedConfig(PreTrainedConfig):
     modelled per dimension by a discretised logistic mixture over `action_bins` bins. Images only (the paper);
     `use_state` adds the robot state.
 
-    Args:
-        - demo_repo_id: Repo id of the demonstrator dataset (e.g. "mosaic/door_sawyer"); needed for training.
-        - demo_root: Local folder of the demonstrator dataset (default: LeRobot's cache, $HF_LEROBOT_HOME/repo_id).
-        - demo_loader_threads: Background threads decoding demonstrator frames ahead of the training step
-            (0 decodes synchronously inside forward()).
-        - demo_prefetch_batches: Batches of demonstrator samples per variation kept decoded ahead.
-        - image_key: Camera feature used by the policy (default: the only/first visual input feature).
-        - n_demo_frames: Demonstration frames the policy conditions on (first, last, one per middle segment).
-        - train_obs_frames: Observation frames per training sample, `frame_stride` dataset frames apart.
-        - frame_stride: Dataset frames between two observation frames of a sample (5 at 20 Hz: 0.25 s).
-        - action_chunk: Consecutive 20 Hz targets predicted per query, executed in order.
-        - eval_obs_frames: Observation frames per inference step (1: the current frame; policies with a memory
-            of past frames keep their own).
-        - vision_backbone: Per-frame vision trunk: "resnet18" (the paper's ResNet-18 to layer3, 2.8 M parameters)
-            or "conv" (four strided 3x3 convolutions, 0.39 M parameters, for training on CPU); both give
-            256 x H/16 x W/16 features, so the rest of every policy is the same.
-        - embed_dim: Size of the per-frame embedding fed to the heads.
-        - head_hidden_dim: Hidden width of the action / inverse-dynamics MLPs.
-        - use_state: Concatenate the normalised robot state to the embedding in the action head (off in the paper).
-        - n_mixtures, action_bins: Logistic mixture components and discretisation bins per action dimension.
-        - action_sampling: "mode" (deterministic) or "sample" at inference.
-        - bc_loss_weight, inverse_loss_weight: Loss weights (paper: 1, 1).
-        - augment, crop_scale_min, translate_fraction, color_jitter, blur_probability: training augmentations.
-        - balance_loss: Average the loss per variation, then per task (the paper's rule), whatever the batch mix.
-        - optimizer_lr, optimizer_weight_decay: Adam (paper: lr 5e-4). Batch size is lerobot-train's --batch_size.
+    The options changed most: `demo_repo_id` / `demo_root` (the demonstrator dataset, needed for training),
+    `vision_backbone` ("conv" trains on a CPU; both trunks give 256 x H/16 x W/16 features, so the rest of every
+    policy is the same), the time scale above and `use_state`. The batch size is lerobot-train's --batch_size.
     """
 
     # Repo id of the demonstrator dataset, same variations (LeRobot task strings) as the agent dataset.

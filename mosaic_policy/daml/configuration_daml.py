@@ -19,14 +19,6 @@ class DamlConfig(DemoConditionedConfig):
     trunk and action head; frames become keypoints (spatial soft-argmax) and pass through an MLP of
     `n_policy_layers` hidden layers, the layers the inner step adapts (with the action head). Acting, the adapted
     weights are computed once per episode by `set_demo`.
-
-    Args:
-        - n_policy_layers: Hidden layers of the policy MLP (2 single-task; 3 multi-task).
-        - policy_hidden_dim: Their width.
-        - inner_steps: Gradient steps of the inner adaptation.
-        - inner_lr: Initial inner learning rate (learned per adapted tensor, as in the paper's code).
-        - adapt_loss_channels: Channels of the temporal convolutions of the learned adaptation loss.
-        - first_order: Drop the second-order terms of the meta-gradient (cheaper, less faithful).
     """
 
     # Hidden layers of the policy MLP, adapted by the inner step (2 single-task, 3 multi-task).
@@ -35,11 +27,11 @@ class DamlConfig(DemoConditionedConfig):
     policy_hidden_dim: int = 1024
     # Gradient steps of the inner adaptation on the demonstration.
     inner_steps: int = 1
-    # Initial inner learning rate (learned).
+    # Initial inner learning rate (learned per adapted tensor, as in the paper's code).
     inner_lr: float = 0.01
     # Channels of the learned temporal adaptation loss's convolutions.
     adapt_loss_channels: int = 64
-    # Skip the second-order terms of the meta-gradient.
+    # Skip the second-order terms of the meta-gradient (cheaper, less faithful).
     first_order: bool = False
 
     def __post_init__(self):

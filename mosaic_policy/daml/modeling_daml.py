@@ -76,8 +76,9 @@ class SpatialSoftArgmax(nn.Module):
 def policy_mlp(in_dim: int, hidden_dim: int, n_hidden: int, out_dim: int) -> nn.Sequential:
     """The adapted layers: `n_hidden` ReLU layers of `hidden_dim`, then a ReLU embedding of `out_dim`.
 
-    He-initialised: with PyTorch's default the keypoints' differences between frames (~0.15) reached the head
-    some 25 times smaller (3 layers), and the head barely told frames apart early in training."""
+    He-initialised, so that the keypoints' small differences between frames reach the head at their own scale
+    (PyTorch's default initialisation shrinks them layer by layer, and the head would barely tell frames apart
+    early in training)."""
     layers: list[nn.Module] = []
     for i in range(n_hidden):
         layers += [nn.Linear(in_dim if i == 0 else hidden_dim, hidden_dim), nn.ReLU()]

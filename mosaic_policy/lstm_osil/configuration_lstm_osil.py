@@ -16,13 +16,9 @@ class LstmOsilConfig(DemoConditionedConfig):
     the demonstration frames, then the observation frames of the sample in order, and its output at each
     observation frame feeds the shared action head and the inverse-dynamics head. Acting, the LSTM state after
     the demonstration is cached once per episode and the LSTM is run over the last `train_obs_frames` query
-    frames (the span a training sample covers). Losses: behaviour cloning and inverse dynamics.
-
-    Args:
-        - n_lstm_layers: Stacked LSTM layers (2 single-task, about the parameters of MOSAIC's 2 attention layers;
-            3 multi-task).
-        - lstm_hidden_dim: Hidden size of the LSTM (its output is projected to `embed_dim`).
-        - lstm_dropout: Dropout between LSTM layers.
+    frames (the span a training sample covers). Losses: behaviour cloning and inverse dynamics. Two LSTM layers
+    (single-task) have about the parameters of MOSAIC's two attention layers; the LSTM's output is projected to
+    `embed_dim`.
     """
 
     # Stacked LSTM layers (2 single-task, 3 multi-task).

@@ -16,11 +16,6 @@ class MlpOsilConfig(DemoConditionedConfig):
     Frames are projected to vectors as in the LSTM baseline; the `n_demo_frames` demo vectors are concatenated
     and an MLP of `n_context_layers` hidden layers maps them to a `context_dim` vector (computed once per episode
     when acting). Losses: behaviour cloning and inverse dynamics.
-
-    Args:
-        - n_context_layers: Hidden layers of the context MLP (2 single-task; 3 multi-task).
-        - context_hidden_dim: Width of its hidden layers.
-        - context_dim: Size of the task context vector.
     """
 
     # Hidden layers of the context MLP (2 single-task, 3 multi-task).

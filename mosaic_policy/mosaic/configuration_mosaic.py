@@ -20,30 +20,10 @@ class MosaicConfig(DemoConditionedConfig):
     The defaults are the paper's single-task settings. Options a user most likely changes: `demo_repo_id` (the
     demonstrator dataset paired with `--dataset.repo_id`), `n_attention_layers` (2 single-task, 3 multi-task)
     and `contrastive` (ablations). The contrastive positive lies within +-`positive_window` observation frames
-    (0.5 s at the default time scale).
-
-    Args:
-        - n_attention_layers: Non-local attention layers (paper: 2 single-task, 3 multi-task).
-        - n_attention_heads: Heads per attention layer.
-        - attention_temperature: Softmax temperature dividing query-key dot products (paper: 16).
-        - attention_pattern: "mosaic" (demo self-attends; each observation frame attends to its own tokens and
-            the demo tokens) or "full" (every frame also attends to the earlier observation frames of its sample,
-            causally: T-OSIL's pattern inside MOSAIC, for the ablation; acts with a memory of past frames).
-        - attention_dropout: Dropout on attention outputs.
-        - contrastive_loss_weight: Weight of the contrastive loss(es) (paper: 1).
-        - contrastive: Where the temporal contrastive loss applies: "off", "before" / "after" attention, "both".
-        - contrastive_objective: "infonce" (bilinear similarity, all other frames of the batch are negatives)
-            or "byol" (no negatives: cosine between predictor output and target projection).
-        - contrastive_positive: "window" (random frame within +-positive_window steps), "fixed" (the frame
-            exactly positive_window steps away) or "same" (the same frame; the two views differ only by
-            augmentation).
-        - positive_window: k of the positive modes above, in observation frames (`frame_stride` dataset frames each).
-        - contrastive_dim, contrastive_hidden_dim: Projector / predictor output and hidden widths.
-        - contrastive_temperature: InfoNCE temperature applied to the bilinear logits of normalised vectors.
-        - ema_momentum: Initial momentum of the EMA target encoder (rises to 1 with a cosine schedule).
-        - ema_total_steps: Steps over which the momentum reaches 1; by default the run's `--steps`, which
-            lerobot-train tells the policy's scheduler preset (fine-tuning a checkpoint starts a new schedule,
-            `--resume` continues it to the new `--steps`).
+    (0.5 s at the default time scale). `attention_pattern="full"` is T-OSIL's causal pattern inside MOSAIC (the
+    attention ablation), acting with a memory of past frames. The EMA target's momentum reaches 1 over the run's
+    `--steps` unless `ema_total_steps` says otherwise (fine-tuning a checkpoint starts a new schedule, `--resume`
+    continues it).
     """
 
     # Attention: 2 layers single-task, 3 multi-task (paper).

@@ -21,14 +21,8 @@ class TosilConfig(DemoConditionedConfig):
     Point prediction: the original predicts where the gripper will be in the image; our datasets carry no camera
     calibration, so a spatial soft-argmax over the attended feature map of each frame (keypoints in image
     coordinates) predicts the gripper target `point_horizon` observation frames ahead (the normalised xyz of the
-    action then), a localisation signal through the same image-space bottleneck.
-
-    Args:
-        - n_attention_layers: Attention layers (2 single-task; the paper adds one for multi-task: 3).
-        - n_attention_heads, attention_temperature, attention_dropout: As MOSAIC's.
-        - point_loss_weight: Weight of the point-prediction loss (T-OSIL: 1).
-        - point_horizon: How many observation frames ahead the predicted point lies (the end of the sample's
-            window when train_obs_frames - 1).
+    action then), a localisation signal through the same image-space bottleneck; the default `point_horizon` is
+    the end of the sample's window (`train_obs_frames` - 1).
     """
 
     # Attention layers (2 single-task; 3 multi-task).

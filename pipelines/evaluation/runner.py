@@ -130,9 +130,9 @@ def _on_workers(
         for reader in readers:
             reader.close()
         tasks.cancel_join_thread()
-        # End the queue's feeder thread now: left running, it holds the queue's semaphore until the interpreter shuts
-        # down, and freeing it from that thread can unlink it without telling the resource tracker, which then
-        # prints "leaked semaphore" warnings after the command's last line (after a worker is killed, say).
+        # The queue's feeder thread ends here, so no "leaked semaphore" warning follows the command's last line (after
+        # a worker is killed, say): a feeder left running holds the queue's semaphore until the interpreter shuts
+        # down, and freeing it from that thread can unlink it without telling the resource tracker.
         tasks.close()
 
 

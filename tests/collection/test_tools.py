@@ -115,7 +115,8 @@ def test_merge_refuses_mixing_robots(door_output, capsys, cli):
 
 
 def test_validate_reports_an_action_jump_that_no_motion_explains():
-    """A rotation flipping sign near pi (the old axis-angle chart) is a problem; a smooth expert motion is not."""
+    """A rotation flipping sign near pi (as a world axis-angle chart of a top-down grasp does) is a problem; a smooth
+    expert motion is not."""
     import numpy as np
 
     from mosaic_data.collection.validate import _check_action_jumps

@@ -84,7 +84,7 @@ def test_a_killed_worker_stops_the_evaluation_and_keeps_the_finished_episodes(tm
         assert len(workers) == 2, [_cmdline(pid) for pid in _children(process.pid)]
         os.kill(workers[0], signal.SIGKILL)  # as the out-of-memory killer does
         killed_at = time.monotonic()
-        code = process.wait(timeout=120)  # before the fix: waits forever for the lost episode
+        code = process.wait(timeout=120)  # the lost episode must not keep the command waiting
         stopped_in = time.monotonic() - killed_at
     finally:
         if process.poll() is None:
@@ -156,7 +156,7 @@ def test_output_paths_are_checked_before_any_work(tmp_path, capsys, case):
     elif case == "md":
         output = tmp_path / "results.md"
     code, _ = _run(tmp_path, "--baseline", "expert", *SMALL, *extra, output=output)
-    error = _one_line_error(capsys)  # before the fix: the evaluation ran, then writing its results failed
+    error = _one_line_error(capsys)  # refused before any rollout, not when the results are written
     assert code == 2 and flag in error
     assert not [path for pattern in ("*.json", "*.md", "*.png") for path in tmp_path.rglob(pattern) if path.is_file()]
 
@@ -301,8 +301,8 @@ class _KilledMidEpisode(_SlowToExit):
 
 
 def test_a_worker_still_exiting_after_its_last_episode_is_not_taken_for_dead():
-    """A loaded machine once took more than the 5 s wait for a finished worker to exit: the evaluation failed with
-    "died (it closed its pipe but did not exit)" although every episode it started had been reported."""
+    """A finished worker may take more than the 5 s wait to exit on a loaded machine: once every episode it started
+    has been reported, it is not reported as "died (it closed its pipe but did not exit)"."""
     from multiprocessing import Pipe
 
     from pipelines.evaluation.runner import _collect

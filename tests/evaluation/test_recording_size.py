@@ -1,5 +1,5 @@
 """`mosaic-eval --rerun`: compressed images, columns of scalars, a real-time ``time`` timeline, and the size goal
-of at most 1 MB per 100-step episode with attention (it was 14 MB at 100x180: raw RGBA overlays at frame size)."""
+of at most 1 MB per 100-step episode with attention (no RGBA overlays at frame size)."""
 
 from __future__ import annotations
 

@@ -195,8 +195,9 @@ def test_full_pattern_runs():
 
 
 def _reference_forward_obs(layer, obs, demo_k, demo_v):
-    """forward_obs as it was computed before the fused kernel, written out with the layer's Conv3d modules: frame
-    t's queries against [its own h*w keys, all demo keys] (the demo keys repeated per frame), one softmax."""
+    """forward_obs without the fused kernel, written out with the layer's Conv3d modules (the reference the fused
+    path must match): frame t's queries against [its own h*w keys, all demo keys] (the demo keys repeated per
+    frame), one softmax."""
     b, c, t, h, w = obs.shape
     n_h, hw = layer.n_heads, h * w
 

@@ -11,7 +11,8 @@ from pipelines.experiments.recipes import ABLATIONS
 
 @pytest.mark.parametrize("variant", list(ABLATIONS))
 def test_every_ablation_option_reaches_the_config(variant):
-    """`--policy.contrastive=off` used to fail: YAML reads `off` as false, and the config refused False."""
+    """Every ablation's options parse into the config, `--policy.contrastive=off` included (YAML reads `off` as
+    false, which the config takes as "off")."""
     _, options = ABLATIONS[variant]
     config = draccus.parse(config_class=MosaicConfig, args=[o.replace("--policy.", "--") for o in options])
     for option in options:

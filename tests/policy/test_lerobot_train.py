@@ -123,7 +123,7 @@ def test_lerobot_train_without_demo_dataset_fails_clearly(door_datasets, tmp_pat
 def test_the_ema_schedule_follows_the_run_lerobot_train_reports_fine_tuning_restarts_it_resume_continues_it():
     """lerobot-train tells the policy's scheduler preset its --steps; the EMA momentum reads the run's progress from
     it (no command line parsing). A fine-tuning run builds a new scheduler: the schedule restarts at the base
-    momentum instead of the finished schedule's 1 (which froze the target encoder); --resume restores the
+    momentum instead of the finished schedule's 1 (which would freeze the target encoder); --resume restores the
     scheduler's step count and the schedule ends at the new --steps."""
     from tests.helpers.policy import small_config
 

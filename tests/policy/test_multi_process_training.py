@@ -87,22 +87,22 @@ def _assert_one_checkpoint_with_the_state_of_every_rank(run: dict) -> None:
 
 @pytest.fixture(scope="module")
 def two_process_run(door_datasets, tmp_path_factory):
-    """One 2-process MOSAIC run (about 20 s on 2 cores), shared by the tests below."""
+    """One 2-process MOSAIC run, shared by the tests below."""
     return _launch_two_processes("mosaic", small_flags("mosaic"), door_datasets, tmp_path_factory.mktemp("two_process"))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("policy_type", BASELINES)
 def test_every_baseline_trains_in_two_processes_to_one_checkpoint_and_identical_ranks(policy_type, door_datasets, tmp_path):
-    """The baselines share MOSAIC's multi-process path (about 20 s each on 2 cores; MOSAIC's run covers it)."""
+    """The baselines share MOSAIC's multi-process path (one run each, hence slow; MOSAIC's run covers the path)."""
     _assert_one_checkpoint_with_the_state_of_every_rank(
         _launch_two_processes(policy_type, small_flags(policy_type), door_datasets, tmp_path)
     )
 
 
 def test_two_processes_write_one_checkpoint_holding_the_state_every_rank_ends_with(two_process_run):
-    """Before, each rank kept BatchNorm statistics of its own shard (72 tensors of the run differed between the
-    ranks, the EMA target's copies among them) and DDP kept rank 0's: statistics from half the samples."""
+    """Every parameter and buffer of the checkpoint equals each rank's final state, the EMA target's copies and the
+    BatchNorm statistics included: the statistics come from both ranks' shards, not rank 0's half of the samples."""
     _assert_one_checkpoint_with_the_state_of_every_rank(two_process_run)
 
 
@@ -142,7 +142,7 @@ def test_each_rank_pairs_the_samples_of_its_own_shard_each_once(two_process_run)
 
 def test_the_loss_is_balanced_over_the_global_batch_as_in_one_process(two_process_run):
     """The per-variation loss balance of the global batch (both ranks' shards), as one process training on it would
-    weigh it; before, each rank balanced its own shard and DDP averaged them (different weights)."""
+    weigh it, not each rank's shard balanced on its own and then averaged by DDP (different weights)."""
     from mosaic_policy.common.demo_conditioning import balanced_sample_weights
 
     ranks = two_process_run["ranks"]
@@ -153,8 +153,8 @@ def test_the_loss_is_balanced_over_the_global_batch_as_in_one_process(two_proces
 
 
 def test_each_rank_draws_its_own_demonstrations_and_augmentations(two_process_run):
-    """Before, both ranks' demonstrator samplers had the same seed and torch's stream (augmentations, contrastive
-    positives, dropout) was the same on both: the i-th sample of every rank got the same random draws."""
+    """The ranks' demonstrator samplers have different seeds and torch's streams (augmentations, contrastive
+    positives, dropout) differ: the i-th samples of two ranks do not get the same random draws."""
     ranks = two_process_run["ranks"]
     assert [r["sampler"]["process_index"] for r in ranks] == [0, 1]
     assert ranks[0]["sampler"]["spawn_key"] != ranks[1]["sampler"]["spawn_key"]
@@ -162,7 +162,7 @@ def test_each_rank_draws_its_own_demonstrations_and_augmentations(two_process_ru
 
 
 def test_each_process_decodes_with_its_share_of_the_cores(two_process_run):
-    """Before, each of the 2 processes started the 2 decode threads asked for, whatever the machine's cores."""
+    """Each of the 2 processes starts at most its share of the machine's cores of the 2 decode threads asked for."""
     expected = max(1, min(2, distributed.usable_cpus() // 2))
     assert [r["sampler"]["threads"] for r in two_process_run["ranks"]] == [expected] * 2
 
@@ -172,8 +172,8 @@ def _draws(sampler: PairedDemoSampler, task: str, n: int = 12) -> list:
 
 
 def test_samplers_of_two_processes_draw_different_demonstrations(door_datasets):
-    """Every process builds its sampler with the same seed; before, every rank drew the same demonstrations and
-    frames in the same order. Process 0 keeps the single-process stream."""
+    """Every process builds its sampler with the same seed, yet no two ranks draw the same demonstrations and frames
+    in the same order. Process 0 keeps the single-process stream."""
     agent_root, demo_root = door_datasets
     meta = LeRobotDatasetMetadata("mosaic/door_panda", root=agent_root)
 
@@ -218,7 +218,7 @@ def test_two_simulated_ranks_pair_each_sample_of_their_own_shard_once(door_datas
 
 
 def test_decode_threads_are_shared_among_the_processes_of_a_machine(monkeypatch):
-    """Two processes on two cores asked for 2 decode threads each started 4; now each gets its share."""
+    """Two processes on two cores asked for 2 decode threads each get 1, their share of the cores."""
     monkeypatch.setattr(distributed, "usable_cpus", lambda: 2)
     monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
     assert distributed.demo_threads_per_process(2) == 2  # one process: what was asked
