@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import draccus
+import yaml
 import pytest
 
 from mosaic_policy.mosaic.configuration_mosaic import MosaicConfig
@@ -17,7 +18,7 @@ def test_every_ablation_option_reaches_the_config(variant):
     config = draccus.parse(config_class=MosaicConfig, args=[o.replace("--policy.", "--") for o in options])
     for option in options:
         name, value = option.removeprefix("--policy.").split("=")
-        expected = {"true": True, "false": False}.get(value, int(value) if value.isdigit() else value)
+        expected = "off" if value == "off" else yaml.safe_load(value)  # as draccus reads a value: YAML
         assert getattr(config, name) == expected
 
 
