@@ -28,6 +28,8 @@ gripper opening in [0, 1]."""
 ACTION_DIM = 7
 N_DEMO_FRAMES = 4
 """Frames of the demonstration a policy conditions on: first, last, one from each middle segment."""
+VISION_BACKBONES = ("resnet18", "conv")
+"""Values of ``--policy.vision_backbone``: the paper's ResNet-18 or the small strided CNN for CPU training."""
 
 
 def policy_features(height: int = IMAGE_HEIGHT, width: int = IMAGE_WIDTH) -> dict:

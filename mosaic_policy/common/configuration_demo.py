@@ -8,18 +8,17 @@ adds its architecture's options.
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, get_args
+from typing import Literal
 
 from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamConfig
 
-from mosaic_data.constants import N_DEMO_FRAMES, STATE_NAMES
+from mosaic_data.constants import N_DEMO_FRAMES, STATE_NAMES, VISION_BACKBONES
 
 from .run_progress import RunProgressSchedulerConfig
 
 ACTION_SAMPLING = ("mode", "sample")
-VisionBackbone = Literal["resnet18", "conv"]
-VISION_BACKBONES: tuple[str, ...] = get_args(VisionBackbone)
+VisionBackbone = Literal[VISION_BACKBONES]  # a Literal: draccus refuses another value naming the choices
 """Trunks `vision_backbone` can name (mosaic_policy.common.trunks.make_trunk builds them)."""
 
 

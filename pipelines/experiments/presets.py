@@ -10,11 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
-from mosaic_data.constants import POLICY_TYPES
+from mosaic_data.constants import POLICY_TYPES, VISION_BACKBONES
 from mosaic_data.tasks.spec import TASK_NAMES
-
-VISION_BACKBONES = ("resnet18", "conv")
-"""Values of --policy.vision_backbone (mosaic_policy.common.configuration_demo.VISION_BACKBONES, without torch)."""
 
 
 class ExperimentError(ValueError):
