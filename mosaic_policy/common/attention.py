@@ -198,6 +198,12 @@ class NonLocalAttentionStack(nn.Module):
             NonLocalAttentionLayer(channels, n_heads, temperature, dropout) for _ in range(n_layers)
         )
 
+    @classmethod
+    def from_config(cls, config, channels: int, pattern: str) -> "NonLocalAttentionStack":
+        """The stack a policy config's attention options describe (layers, heads, temperature, dropout)."""
+        return cls(channels, config.n_attention_layers, config.n_attention_heads, config.attention_temperature,
+                   config.attention_dropout, pattern)
+
     def encode_demo(self, demo: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
         """Demo features through every layer; returns the output and each layer's demo keys/values (the cache)."""
         cache = []

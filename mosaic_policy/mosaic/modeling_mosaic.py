@@ -57,14 +57,7 @@ class MosaicModel(DemoConditionedModel):
 
     def build_context(self, channels: int, height: int, width: int) -> None:
         config = self.config
-        self.attention = NonLocalAttentionStack(
-            channels,
-            config.n_attention_layers,
-            config.n_attention_heads,
-            config.attention_temperature,
-            config.attention_dropout,
-            config.attention_pattern,
-        )
+        self.attention = NonLocalAttentionStack.from_config(config, channels, config.attention_pattern)
 
     def obs_position_for(self, n_frames: int) -> Tensor:
         if self.config.attention_pattern == "full":  # frames that see each other are told apart by time

@@ -112,14 +112,7 @@ class TosilModel(DemoConditionedModel):
 
     def build_context(self, channels: int, height: int, width: int) -> None:
         config = self.config
-        self.attention = NonLocalAttentionStack(
-            channels,
-            config.n_attention_layers,
-            config.n_attention_heads,
-            config.attention_temperature,
-            config.attention_dropout,
-            pattern="full",
-        )
+        self.attention = NonLocalAttentionStack.from_config(config, channels, "full")
 
     def obs_position_for(self, n_frames: int) -> Tensor:
         """(C, n_frames, h, w) encodings of observation frames at times D..D+n_frames-1."""

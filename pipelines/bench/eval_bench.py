@@ -38,18 +38,10 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 
 CHECKPOINT_SCRIPT = """
-import sys, torch
-from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
-from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
-from mosaic_data.constants import policy_features
-from pipelines.evaluation.agents import workspace_action_stats
+import sys
+from pipelines.evaluation.agents import untrained_mosaic
 folder, height, width = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-config = MosaicConfig(device="cpu", **policy_features(height, width), push_to_hub=False)
-torch.manual_seed(0)
-policy = MosaicPolicy(config)
-stats = workspace_action_stats() | {"observation.state": {"mean": torch.zeros(10), "std": torch.ones(10)}}
-preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=stats)
-for part in (policy, preprocessor, postprocessor):
+for part in untrained_mosaic(height, width):
     part.save_pretrained(folder)
 """
 

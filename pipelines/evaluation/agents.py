@@ -253,6 +253,21 @@ def workspace_action_stats() -> dict[str, dict[str, torch.Tensor]]:
     return {ACTION_KEY: {"min": torch.from_numpy(ACTION_LOW.copy()), "max": torch.from_numpy(ACTION_HIGH.copy())}}
 
 
+def untrained_mosaic(height: int, width: int, **options: Any) -> tuple[Any, Any, Any]:
+    """(policy, preprocessor, postprocessor): MOSAIC at initialisation, the same weights in every process (seed 0),
+    with an action range that is the workspace box. The paper's "No Training" row; the untrained checkpoints that
+    benchmarks and tests save. ``options`` are MosaicConfig fields (sizes)."""
+    from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
+    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
+
+    config = MosaicConfig(device="cpu", **policy_features(height, width), push_to_hub=False, **options)
+    torch.manual_seed(0)
+    policy = MosaicPolicy(config)
+    stats = workspace_action_stats() | {STATE_KEY: {"mean": torch.zeros(STATE_DIM), "std": torch.ones(STATE_DIM)}}
+    preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=stats)
+    return policy, preprocessor, postprocessor
+
+
 class PolicyAgent:
     """A LeRobot policy with its pre/post-processors (a checkpoint of any type, or MOSAIC untrained for the sanity row)."""
 
@@ -294,15 +309,7 @@ class PolicyAgent:
     @classmethod
     def _untrained(cls, spec: AgentSpec) -> PolicyAgent:
         """MOSAIC at initialisation (the paper's "No Training" row); actions are scaled to the workspace box."""
-        from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
-        from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
-
-        height, width = spec.image_hw
-        config = MosaicConfig(device="cpu", **policy_features(height, width))
-        torch.manual_seed(0)  # the same untrained weights in every worker
-        policy = MosaicPolicy(config)
-        preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=workspace_action_stats())
-        return cls(spec, policy, preprocessor, postprocessor)
+        return cls(spec, *untrained_mosaic(*spec.image_hw))
 
     @property
     def attention_hw(self) -> tuple[int, int] | None:

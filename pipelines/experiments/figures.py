@@ -1,4 +1,5 @@
-"""PNG figures of an experiment report: per-task bars against the paper, fine-tuning curves, confusion matrices."""
+"""PNG figures of an experiment report: per-task bars against the paper, fine-tuning and learning curves,
+confusion matrices."""
 
 from __future__ import annotations
 
@@ -18,6 +19,13 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _save(plt, figure, path: Path) -> Path:
+    figure.tight_layout()
+    figure.savefig(path)
+    plt.close(figure)
+    return path
 
 
 def plot_bars(cells: list[CellResult], table: str, path: Path) -> Path | None:
@@ -75,11 +83,39 @@ def plot_fine_tune(curves: list[dict[str, Any]], folder: Path) -> list[Path]:
                        "(fine-tuning starts at step 0 from the model trained on the other tasks)", fontsize=9)
         axis.grid(alpha=0.3)
         axis.legend(fontsize=7, ncol=2)
-        figure.tight_layout()
-        path = folder / f"fine_tune_{task}_{method}.png"
-        figure.savefig(path)
-        plt.close(figure)
-        paths.append(path)
+        paths.append(_save(plt, figure, folder / f"fine_tune_{task}_{method}.png"))
+    return paths
+
+
+def plot_learning_curves(curves: list[dict[str, Any]], folder: Path) -> list[Path]:
+    """One PNG per run: success vs training steps with its interval band, the wrong-variation share, and each
+    variation's success dotted."""
+    from matplotlib.ticker import MaxNLocator
+
+    plt = _pyplot()
+    paths = []
+    for curve in curves:
+        points = curve["points"]
+        if not points:
+            continue
+        steps = [p["step"] for p in points]
+        figure, axis = plt.subplots(figsize=(6, 3.8), dpi=120)
+        success = [100 * p["success"] for p in points]
+        axis.plot(steps, success, "o-", color="tab:blue", label="one-shot success")
+        axis.fill_between(steps, [100 * p["ci95"][0] for p in points], [100 * p["ci95"][1] for p in points],
+                          color="tab:blue", alpha=0.15, label="95% interval")
+        axis.plot(steps, [100 * p["wrong_variation_share"] for p in points], "s--", color="tab:red",
+                  label="did another variation")
+        colours = plt.get_cmap("Dark2")
+        for index, variation in enumerate(points[-1]["per_variation"]):
+            axis.plot(steps, [100 * p["per_variation"].get(variation, 0.0) for p in points], ":", alpha=0.8,
+                      color=colours(index % 8), label=f"variation {variation}")
+        axis.xaxis.set_major_locator(MaxNLocator(integer=True))
+        axis.set(xlabel="training steps", ylabel="% of episodes", ylim=(-3, 103),
+                 title=f"{curve['task']}, {curve['method']}: one-shot success vs training steps")
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=7, loc="best")
+        paths.append(_save(plt, figure, folder / f"learning_{curve['task']}_{curve['method']}.png"))
     return paths
 
 

@@ -1,5 +1,5 @@
 """The ``learning`` recipe's part of a report: the learning curve of every run and its checkpoints' per-variation
-success, which the Table-I style cells (one number per method and task) do not show.
+success, which the Table-I style cells (one number per method and task) do not show (``figures.py`` draws it).
 
 A learning run is judged by one-shot success on held-out instances, its interval, and which variation the agent
 did; a curve point is one evaluated checkpoint, averaged over training seeds when there are several.
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -97,42 +96,3 @@ def per_variation_markdown(curves: list[dict[str, Any]]) -> str:
                 + " | ".join(f"{100 * point['per_variation'].get(v, 0.0):.0f}" for v in variations) + " |\n"
             )
     return "".join(lines)
-
-
-def plot_learning_curves(curves: list[dict[str, Any]], folder: Path) -> list[Path]:
-    """One PNG per run: success vs training steps with its interval band, the wrong-variation share, and each
-    variation's success dotted."""
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator
-
-    paths = []
-    for curve in curves:
-        points = curve["points"]
-        if not points:
-            continue
-        steps = [p["step"] for p in points]
-        figure, axis = plt.subplots(figsize=(6, 3.8), dpi=120)
-        success = [100 * p["success"] for p in points]
-        axis.plot(steps, success, "o-", color="tab:blue", label="one-shot success")
-        axis.fill_between(steps, [100 * p["ci95"][0] for p in points], [100 * p["ci95"][1] for p in points],
-                          color="tab:blue", alpha=0.15, label="95% interval")
-        axis.plot(steps, [100 * p["wrong_variation_share"] for p in points], "s--", color="tab:red",
-                  label="did another variation")
-        colours = plt.get_cmap("Dark2")
-        for index, variation in enumerate(points[-1]["per_variation"]):
-            axis.plot(steps, [100 * p["per_variation"].get(variation, 0.0) for p in points], ":", alpha=0.8,
-                      color=colours(index % 8), label=f"variation {variation}")
-        axis.xaxis.set_major_locator(MaxNLocator(integer=True))
-        axis.set(xlabel="training steps", ylabel="% of episodes", ylim=(-3, 103),
-                 title=f"{curve['task']}, {curve['method']}: one-shot success vs training steps")
-        axis.grid(alpha=0.3)
-        axis.legend(fontsize=7, loc="best")
-        figure.tight_layout()
-        path = folder / f"learning_{curve['task']}_{curve['method']}.png"
-        figure.savefig(path)
-        plt.close(figure)
-        paths.append(path)
-    return paths

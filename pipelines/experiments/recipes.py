@@ -253,14 +253,20 @@ def _seeds(preset: ExperimentPreset) -> range:
     return range(1, preset.seeds + 1)
 
 
-def single_task(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
+def _trained_per_task(b: PlanBuilder, tasks: tuple[str, ...], table: str, methods: tuple[str, ...],
+                      every_checkpoint: bool = False) -> None:
+    """Per task: each method trained on the task's dataset and evaluated on it."""
     for task in tasks:
         data = b.dataset(task)
-        for method in b.preset.methods:
+        for method in methods:
             for seed in _seeds(b.preset):
-                run = f"single-task/{task}/{method}/seed{seed}"
+                run = f"{table}/{task}/{method}/seed{seed}"
                 train_dir = b.train(run, data, method, seed)
-                b.evaluate("single-task", method, run, train_dir, (task,), seed)
+                b.evaluate(table, method, run, train_dir, (task,), seed, every_checkpoint=every_checkpoint)
+
+
+def single_task(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
+    _trained_per_task(b, tasks, "single-task", b.preset.methods)
 
 
 def multi_task(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
@@ -340,13 +346,7 @@ def ablations(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
 
 
 def learning(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
-    for task in tasks:
-        data = b.dataset(task)
-        for method in b.preset.learning_methods:
-            for seed in _seeds(b.preset):
-                run = f"learning/{task}/{method}/seed{seed}"
-                train_dir = b.train(run, data, method, seed)
-                b.evaluate("learning", method, run, train_dir, (task,), seed, every_checkpoint=True)
+    _trained_per_task(b, tasks, "learning", b.preset.learning_methods, every_checkpoint=True)
 
 
 RECIPES = {

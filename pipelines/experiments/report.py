@@ -115,8 +115,8 @@ def write_report(output_dir: Path, entries: list[dict[str, Any]]) -> dict[str, P
 
     ``entries``: per recipe run in the folder, {"recipe", "preset_name", "preset", "overrides", "plan",
     "seconds"} (seconds per stage kind, from the stages' done markers)."""
-    from .figures import plot_bars, plot_confusion, plot_fine_tune
-    from .learning_report import learning_curves, per_variation_markdown, plot_learning_curves
+    from .figures import plot_bars, plot_confusion, plot_fine_tune, plot_learning_curves
+    from .learning_report import learning_curves, per_variation_markdown
 
     figures_dir = output_dir / "figures"
     figures_dir.mkdir(parents=True, exist_ok=True)

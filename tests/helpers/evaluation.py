@@ -15,25 +15,10 @@ HEIGHT, WIDTH = 48, 88
 
 def write_tiny_checkpoint(folder: Path, height: int = HEIGHT, width: int = WIDTH) -> Path:
     """An untrained two-layer MOSAIC at ``height`` x ``width`` with action statistics over the workspace."""
-    from mosaic_policy import MosaicConfig, make_mosaic_pre_post_processors
-    from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
+    from pipelines.evaluation.agents import untrained_mosaic
 
-    config = MosaicConfig(
-        device="cpu",
-        **policy_features(height, width),
-        n_attention_layers=2,
-        n_attention_heads=2,
-        embed_dim=32,
-        head_hidden_dim=32,
-        push_to_hub=False,
-    )
-    torch.manual_seed(0)
-    policy = MosaicPolicy(config)
-    from pipelines.evaluation.agents import workspace_action_stats
-
-    stats = workspace_action_stats() | {"observation.state": {"mean": torch.zeros(10), "std": torch.ones(10)}}
-    preprocessor, postprocessor = make_mosaic_pre_post_processors(config, dataset_stats=stats)
-    for part in (policy, preprocessor, postprocessor):
+    parts = untrained_mosaic(height, width, n_attention_layers=2, n_attention_heads=2, embed_dim=32, head_hidden_dim=32)
+    for part in parts:
         part.save_pretrained(folder)
     return folder
 
