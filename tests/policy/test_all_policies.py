@@ -153,21 +153,39 @@ def test_mosaic_eval_puts_every_policy_side_by_side_with_its_confusion_matrix(tr
         assert (output.parent / f"confusion_door_{policy_type}.png").stat().st_size > 0
 
 
-@pytest.mark.parametrize("policy_type", BASELINES)
-def test_lerobot_eval_runs_every_baseline_on_the_mosaic_env(trained_checkpoints, policy_type, tmp_path):
-    result = _run(
-        "lerobot-eval",
-        [
-            f"--policy.path={trained_checkpoints[policy_type]}", "--env.type=mosaic", "--env.task=door",
-            "--env.variations=[0]", f"--env.observation_height={HEIGHT}", "--env.observation_width=56",
-            "--env.episode_length=4", "--eval.n_episodes=1", "--eval.batch_size=1", "--policy.device=cpu",
-            f"--output_dir={tmp_path / 'eval'}",
-        ],
-        tmp_path,
-    )
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
-    assert info["overall"]["n_episodes"] == 1
+def test_lerobots_evaluation_loop_runs_every_baseline_on_the_mosaic_env(trained_checkpoints):
+    """LeRobot's own `eval_policy` (what `lerobot-eval --env.type=mosaic` runs; the command itself runs in
+    tests/evaluation/test_same_numbers.py) with every baseline's checkpoint, policy and processors built by LeRobot's
+    factories as the command builds them, on one mosaic environment."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.envs.factory import make_env, make_env_pre_post_processors
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+    from lerobot.scripts.lerobot_eval import eval_policy
+
+    from pipelines.evaluation.agents import register_policy_types
+    from pipelines.evaluation.lerobot_env import MosaicEnv
+
+    register_policy_types()
+    env_config = MosaicEnv(task="door", variations=[0], observation_height=HEIGHT, observation_width=WIDTH,
+                           episode_length=4)
+    env = make_env(env_config, n_envs=1)["door"][0]
+    try:
+        for policy_type in BASELINES:
+            checkpoint = trained_checkpoints[policy_type]
+            policy_config = PreTrainedConfig.from_pretrained(checkpoint)
+            policy_config.pretrained_path = checkpoint
+            policy = make_policy(cfg=policy_config, env_cfg=env_config).eval()
+            assert policy.name == policy_type
+            preprocessor, postprocessor = make_pre_post_processors(
+                policy_cfg=policy_config, pretrained_path=str(checkpoint),
+                preprocessor_overrides={"device_processor": {"device": "cpu"}},
+            )
+            env_processors = make_env_pre_post_processors(env_cfg=env_config, policy_cfg=policy_config)
+            with torch.no_grad():
+                info = eval_policy(env, policy, *env_processors, preprocessor, postprocessor, n_episodes=1)
+            assert len(info["per_episode"]) == 1, policy_type
+    finally:
+        env.close()
 
 
 def test_importing_the_package_registers_exactly_the_policy_types_with_lerobot():
