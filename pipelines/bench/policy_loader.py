@@ -22,8 +22,8 @@ from mosaic_data.constants import ACTION_KEY, CAMERA_KEY, FPS, N_DEMO_FRAMES, ST
 
 
 def write_pair(base: Path, episodes: int, length: int, height: int, width: int) -> tuple[Path, Path]:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "policy"))
-    from conftest import write_dataset  # the tests' writer: LeRobotDataset.create / add_frame / save_episode
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: its tests package
+    from tests.helpers.policy import write_dataset  # LeRobotDataset.create / add_frame / save_episode
 
     agent = write_dataset(base / "agent", "mosaic/bench_panda", [0, 1, 2, 3], episodes, length, height, width)
     demo = write_dataset(base / "demo", "mosaic/bench_sawyer", [0, 1, 2, 3], episodes, length, height, width)
