@@ -1,8 +1,9 @@
 """The smoke preset end to end with the real tools: mosaic-data collect/merge, lerobot-train, mosaic-eval.
 
-CI runs three recipes: single-task with two methods (every policy type trains and evaluates through the same
-commands in tests/policy/test_all_policies.py), fine-tune on one data fraction with a kill in the middle and a
-resume, and learning; they share one data folder, as experiments of one preset may.
+CI runs two recipes: learning (collect, train, evaluate every checkpoint, report, a rerun that skips it all) and
+fine-tune on one data fraction, with a kill in the middle and a resume; they share one data folder, as experiments
+of one preset may. Every policy type trains and evaluates through the same commands in
+tests/policy/test_all_policies.py; the report's tables and figures of every recipe are checked in test_report.py.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from pipelines.experiments.recipes import build_plan
 from pipelines.experiments.stages import is_done, stage_folder
 
 EXPERIMENT = [sys.executable, "-m", "pipelines.experiments.cli"]
-SINGLE_TASK_METHODS = ["mosaic", "daml"]  # MOSAIC and the policy type least like it
 FINE_TUNE_FRACTION = 50
 
 
@@ -34,38 +34,6 @@ def smoke_data(tmp_path_factory) -> Path:
 
 def _run(arguments: list[str], **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run([*EXPERIMENT, *arguments], capture_output=True, text=True, timeout=1200, **kwargs)
-
-
-def test_single_task_smoke_runs_every_method_and_reports_them(smoke_data, tmp_path):
-    output = tmp_path / "single"
-    overrides = [f"methods={','.join(SINGLE_TASK_METHODS)}"]
-    arguments = ["run", "single-task", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data),
-                 "--set", *overrides]
-    result = _run(arguments)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    plan = build_plan("single-task", resolve_preset("smoke", overrides), output, smoke_data)
-    for stage in plan.stages:  # each stage kept its exact command (the dry run's) and its log
-        folder = stage_folder(output, stage)
-        assert (folder / "command.txt").read_text().strip() == stage.shell_line()
-        assert (folder / "log.txt").stat().st_size > 0 and is_done(output, stage)
-    summary = json.loads((output / "results.json").read_text())
-    cells = summary["recipes"][0]["cells"]
-    assert [c["row"] for c in cells] == SINGLE_TASK_METHODS
-    markdown = (output / "results.md").read_text()
-    for cell, name in zip(cells, (POLICY_TYPES[m] for m in SINGLE_TASK_METHODS)):
-        # the table's number is the evaluation's own: read it back from mosaic-eval's results file
-        evaluation = next(e for e in plan.evaluations if e.row == cell["row"])
-        task_row = json.loads(evaluation.results.read_text())["tables"]
-        task_row = next(iter(task_row.values()))["per_task"][0]
-        assert cell["mean"] == task_row["mean"] and cell["episodes"] == task_row["episodes"] == 4
-        interval = f"[{100 * cell['ci95_low']:.1f}, {100 * cell['ci95_high']:.1f}] (n=4)"
-        assert f"| {name} | {100 * cell['mean']:.1f} +- 0.0 {interval} (paper " in markdown
-    assert "(paper 67.1)" in markdown  # MOSAIC's published single-task door number beside ours
-    assert (output / "figures" / "bars_single-task.png").stat().st_size > 0
-    assert (output / "figures" / "confusion_single-task_daml_door.png").stat().st_size > 0
-    # a second run finds everything done and only rewrites the report
-    again = _run(arguments)
-    assert again.returncode == 0 and again.stdout.count("done before, skipped") == len(plan.stages)
 
 
 def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, tmp_path):
@@ -111,15 +79,32 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
     assert "novel-task/door/mosaic/seed1" in (stage_folder(output, target) / "log.txt").read_text()
 
 
-def test_learning_smoke_evaluates_every_checkpoint_into_a_curve(smoke_data, tmp_path):
+def test_learning_smoke_runs_every_stage_reports_each_checkpoint_and_resumes_as_done(smoke_data, tmp_path):
     output = tmp_path / "learning"
-    result = _run(["run", "learning", "--preset", "smoke", "--set", "steps=4", "--output", str(output),
-                   "--data-dir", str(smoke_data)])
+    overrides = ["steps=4"]  # checkpoints at steps 2 and 4, both evaluated
+    arguments = ["run", "learning", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data),
+                 *(f"--set={o}" for o in overrides)]
+    result = _run(arguments)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    plan = build_plan("learning", resolve_preset("smoke", overrides), output, smoke_data)
+    for stage in plan.stages:  # each stage kept its exact command (the dry run's) and its log
+        folder = stage_folder(output, stage)
+        assert (folder / "command.txt").read_text().strip() == stage.shell_line()
+        assert (folder / "log.txt").stat().st_size > 0 and is_done(output, stage)
     recipe = json.loads((output / "results.json").read_text())["recipes"][0]
     points = recipe["curves"][0]["points"]
     assert [p["step"] for p in points] == [2, 4] and all(p["episodes"] == 4 for p in points)
     assert set(points[-1]["per_variation"]) == {"0", "1", "2", "3"}
+    # the table's number is the last checkpoint's evaluation's own: read it back from mosaic-eval's results file
+    (cell,) = recipe["cells"]
+    task_row = next(iter(json.loads(plan.evaluations[-1].results.read_text())["tables"].values()))["per_task"][0]
+    assert cell["mean"] == task_row["mean"] == points[-1]["success"] and cell["episodes"] == 4
+    markdown = (output / "results.md").read_text()
+    interval = f"[{100 * cell['ci95_low']:.1f}, {100 * cell['ci95_high']:.1f}] (n=4)"
+    assert f"| {POLICY_TYPES['mosaic']} | {100 * cell['mean']:.1f} +- 0.0 {interval} (paper 67.1) |" in markdown
+    assert "Learning curve: every saved checkpoint" in markdown
     assert (output / "figures" / "learning_door_mosaic.png").stat().st_size > 10_000
     assert (output / "figures" / "confusion_learning_mosaic_door.png").stat().st_size > 0
-    assert "Learning curve: every saved checkpoint" in (output / "results.md").read_text()
+    # a second run finds everything done and only rewrites the report
+    again = _run(arguments)
+    assert again.returncode == 0 and again.stdout.count("done before, skipped") == len(plan.stages)
