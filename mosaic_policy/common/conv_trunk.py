@@ -5,9 +5,8 @@ Four 3x3 convolutions of stride 2 (32, 64, 128, 256 channels), each followed by 
 :class:`~mosaic_policy.common.resnet_trunk.ResNetTrunk` for every input size (a stride-2 3x3 convolution with
 padding 1 maps n to ceil(n / 2), as ResNet's stem, max-pool and strided stages do), so every policy's attention,
 embeddings and keypoints work unchanged. 0.39 M parameters against the ResNet trunk's 2.78 M; on CPU at 48x88
-its forward + backward is about 6 times cheaper and a whole MOSAIC training step about 2.7 times (the attention
-and the augmentations, which the trunk does not change, then take most of it: ``python -m
-pipelines.bench.policy_train_step --compare-trunks``).
+its forward + backward is several times cheaper; the attention, which the trunk does not change, then takes half
+of a MOSAIC training step (``python -m pipelines.bench.policy_train_step --compare-trunks`` prints the parts).
 
 Robomimic's small image encoders end with a spatial soft-argmax (keypoints); this one keeps the spatial feature
 map, because MOSAIC's and T-OSIL's attention attends over its h x w locations and the embeddings keep where
