@@ -4,4 +4,4 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."  # paths below are relative to the repository root
 source scripts/setup.sh
-python -m pytest -q "$@"
+python -m pytest -q --durations=15 "$@"  # the 15 slowest tests close the report
