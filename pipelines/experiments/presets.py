@@ -78,7 +78,7 @@ PRESETS: dict[str, ExperimentPreset] = {
         multi_task_tasks=("door",), novel_task_pool=("door", "press_button"), novel_task_tasks=("door",),
         fine_tune_tasks=("door",), fine_tune_steps=300, fine_tune_save_every=100, num_workers=1,
     ),
-    # Minutes, end to end; CI runs single-task and fine-tune with it.
+    # Minutes, end to end; CI runs learning and fine-tune with it.
     "smoke": ExperimentPreset(
         image_size="32x56", episodes=2, steps=2, batch_size=4, train_obs_frames=2, vision_backbone="conv", save_every=2,
         eval_checkpoints=1, eval_episodes=1, eval_max_steps=8, seeds=1, single_task_tasks=("door",), multi_task_tasks=("door", "press_button"),
