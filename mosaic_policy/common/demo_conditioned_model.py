@@ -40,8 +40,8 @@ def make_action_head(config: DemoConditionedConfig, in_dim: int, action_dim: int
 class DemoConditionedModel(nn.Module):
     """Trunk, task context (the subclass's), frame embedding, action head and inverse-dynamics head.
 
-    The modules are created in that order. ``state_dim`` is the width of the robot state the action head reads
-    (0 unless `use_state`)."""
+    The modules are created in that order. ``state_dim`` is the width of the dataset's robot state (0 unless
+    `use_state`); the action head reads all of it, or the `state_components` the config names."""
 
     has_frame_embedding = True
     """Build `embed`, the :class:`FrameEmbedding` of a frame's trunk features."""
@@ -51,14 +51,14 @@ class DemoConditionedModel(nn.Module):
     def __init__(self, config: DemoConditionedConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__()
         self.config = config
-        self.state_dim = state_dim
         self.state_indices = [STATE_NAMES.index(name) for name in config.state_components]  # empty: the whole state
+        self.state_dim = len(self.state_indices) if state_dim and self.state_indices else state_dim  # the head's
         self.trunk = make_trunk(config)
         channels, h, w = self.trunk.feature_shape(*image_hw)
         self.feature_shape = (channels, h, w)
         self.build_context(channels, h, w)
         self.embed = FrameEmbedding(channels, h, w, config.embed_dim) if self.has_frame_embedding else None
-        self.action_head = make_action_head(config, config.embed_dim + state_dim, action_dim)
+        self.action_head = make_action_head(config, config.embed_dim + self.state_dim, action_dim)
         self.inverse_head = None
         if self.has_inverse_head:
             self.inverse_head = make_action_head(config, 2 * config.embed_dim, action_dim)

@@ -120,8 +120,7 @@ class DemoConditionedPolicy(PreTrainedPolicy):
             color_jitter=config.color_jitter,
             blur_probability=config.blur_probability,
         )
-        head_state_dim = (len(config.state_components) or self.state_dim) if config.use_state else 0
-        self.build(self.image_hw, head_state_dim, self.action_dim)
+        self.build(self.image_hw, self.state_dim if config.use_state else 0, self.action_dim)
         if dataset_meta is not None:
             self.conditioning = DemoConditioning.for_training(config, dataset_meta, kwargs.get("agent_episodes"))
         else:

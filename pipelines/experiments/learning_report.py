@@ -7,7 +7,6 @@ did; a curve point is one evaluated checkpoint, averaged over training seeds whe
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from typing import Any
 
@@ -16,22 +15,17 @@ import numpy as np
 from pipelines.evaluation.intervals import rate_interval
 
 from .recipes import Evaluation, Plan
+from .results import read_results_table
 
 
 def _checkpoint_result(evaluation: Evaluation) -> dict[str, Any] | None:
-    """Success, interval, wrong-variation share and per-variation success of one evaluated checkpoint."""
-    if not evaluation.results.is_file():
-        return None
-    results = json.loads(evaluation.results.read_text())
-    if results.get("partial"):
-        return None
-    table = next(iter(results["tables"].values()))
-    task_row = next((row for row in table["per_task"] if row["task"] == evaluation.task), None)
+    """Success, wrong-variation share and per-variation success of one evaluated checkpoint."""
+    table = read_results_table(evaluation)
+    task_row = None if table is None else next((r for r in table["per_task"] if r["task"] == evaluation.task), None)
     if task_row is None:
         return None
     return {
         "success": task_row["mean"],
-        "successes": task_row["successes"],
         "episodes": task_row["episodes"],
         "wrong_variation_share": task_row["confusion"]["wrong_variation_share"] or 0.0,
         "per_variation": {int(row["variation"]): row["mean"] for row in table["per_variation"]

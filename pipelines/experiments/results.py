@@ -74,14 +74,21 @@ class CellResult:
         }
 
 
-def read_evaluation(evaluation: Evaluation) -> dict[str, Any] | None:
-    """The task row of one mosaic-eval results.json (its only agent: the checkpoint), None before it ran."""
+def read_results_table(evaluation: Evaluation) -> dict[str, Any] | None:
+    """The table of one mosaic-eval results.json (its only agent: the checkpoint), None before it ran."""
     if not evaluation.results.is_file():
         return None
     results = json.loads(evaluation.results.read_text())
     if results.get("partial"):  # an evaluation that stopped early: its stage reruns it, the report waits for it
         return None
-    table = next(iter(results["tables"].values()))
+    return next(iter(results["tables"].values()))
+
+
+def read_evaluation(evaluation: Evaluation) -> dict[str, Any] | None:
+    """The task row of one mosaic-eval results.json, None before it ran."""
+    table = read_results_table(evaluation)
+    if table is None:
+        return None
     return next((row for row in table["per_task"] if row["task"] == evaluation.task), None)
 
 
