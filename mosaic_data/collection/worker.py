@@ -75,8 +75,6 @@ class EnvironmentCache:
 
 def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=None, parent_pid: int | None = None) -> ShardResult:
     """Collect the shard's successful episodes and commit it; returns what was written."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     from mosaic_data.atomic_files import give_plain_modes, write_json_atomically
     from mosaic_data.collection.episode_saving import skip_needless_image_embedding
     from mosaic_data.rollout import run_expert_episode
@@ -90,15 +88,7 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
         shutil.rmtree(temporary)
     temporary.parent.mkdir(parents=True, exist_ok=True)
     env = environments.get(settings, spec.variation)
-    dataset = LeRobotDataset.create(
-        repo_id,
-        fps=FPS,
-        features=dataset_features(settings.image_height, settings.image_width),
-        root=temporary,
-        robot_type=settings.robot,
-        use_videos=True,
-        streaming_encoding=True,  # encode while frames are added: no PNG staging, half the writing time
-    )
+    dataset = create_shard_dataset(repo_id, temporary, settings.robot, settings.image_height, settings.image_width, env.horizon)
     records, frames, rollout_s, write_s = [], 0, 0.0, 0.0
     writer = _LiveEpisodeWriter(dataset, env.horizon)
     try:
@@ -161,6 +151,29 @@ def collect_shard(spec: ShardSpec, environments: EnvironmentCache, on_episode=No
         raise
     peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return ShardResult(spec.name, repo_id, records, frames, rollout_s, write_s, peak_rss_mb)
+
+
+def create_shard_dataset(repo_id: str, root: Path, robot: str, height: int, width: int, horizon: int):
+    """An empty LeRobot dataset whose video is encoded while the frames are added (no PNG staging, half the
+    writing time), with room in the encoder's queue for a whole episode.
+
+    LeRobot's streaming encoder is built for cameras: when its queue is full for 0.1 s it drops the frame and only
+    logs it. A collection on a loaded machine (the encoder thread starved for a moment) would then write a video
+    shorter than its episodes. With a queue of ``horizon`` frames a simulated episode never waits and never loses a
+    frame; the queue is emptied at every ``save_episode``.
+    """
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset.create(
+        repo_id,
+        fps=FPS,
+        features=dataset_features(height, width),
+        root=root,
+        robot_type=robot,
+        use_videos=True,
+        streaming_encoding=True,
+        encoder_queue_maxsize=horizon + 1,
+    )
 
 
 class _LiveEpisodeWriter:

@@ -1,4 +1,5 @@
-"""LeRobot's writer skips its row-by-row image-embedding pass on our video-only datasets, and writes the same files."""
+"""LeRobot's writer skips its row-by-row image-embedding pass on our video-only datasets, and writes the same files;
+the streaming video encoder of a collection shard keeps every frame."""
 
 from __future__ import annotations
 
@@ -14,6 +15,17 @@ from mosaic_data.collection.episode_saving import skip_needless_image_embedding
 from mosaic_data.collection.schema import FPS, dataset_features
 
 
+def _episode_frame(features, rng, step: int, length: int) -> dict:
+    """One frame of fixed pseudo-random content for every feature."""
+    return {
+        key: rng.integers(0, 256, spec["shape"], dtype=np.uint8) if spec["dtype"] in ("video", "image")
+        else rng.standard_normal(spec["shape"]).astype(spec["dtype"]) if spec["dtype"] == "float32"
+        else np.array([step == length - 1], dtype=bool) if spec["dtype"] == "bool"
+        else np.array([1], dtype=np.int64)
+        for key, spec in features.items()
+    }
+
+
 def write_episodes(root, features, image_key=None) -> None:
     """Two small episodes of fixed pseudo-random content through LeRobot's real writer."""
     rng = np.random.default_rng(0)
@@ -21,14 +33,7 @@ def write_episodes(root, features, image_key=None) -> None:
                                     use_videos=True)
     for length in (5, 7):
         for step in range(length):
-            frame = {
-                key: rng.integers(0, 256, spec["shape"], dtype=np.uint8) if spec["dtype"] in ("video", "image")
-                else rng.standard_normal(spec["shape"]).astype(spec["dtype"]) if spec["dtype"] == "float32"
-                else np.array([step == length - 1], dtype=bool) if spec["dtype"] == "bool"
-                else np.array([1], dtype=np.int64)
-                for key, spec in features.items()
-            }
-            dataset.add_frame(frame | {"task": "open the door"})
+            dataset.add_frame(_episode_frame(features, rng, step, length) | {"task": "open the door"})
         dataset.save_episode()
     dataset.finalize()
 
@@ -79,3 +84,34 @@ def test_datasets_with_image_columns_still_embed(tmp_path, monkeypatch):
     assert calls == [1, 1], "LeRobot's embedding pass must still run when a column holds images"
     loaded = LeRobotDataset("mosaic/saving_test", root=tmp_path / "images")
     assert tuple(loaded[0]["observation.images.agentview"].shape) == (3, 56, 96)
+
+
+def test_a_late_video_encoder_loses_no_frame(tmp_path, monkeypatch):
+    """LeRobot's streaming encoder thread, held back for a second before it takes its first frame (what a loaded
+    machine does to it), while a whole episode's frames arrive: every frame still reaches the video. (A camera
+    encoder's queue of 30 frames drops each further frame it cannot take within 0.1 s.)"""
+    import time
+
+    import av
+    from lerobot.datasets import video_utils
+
+    from mosaic_data.collection.worker import create_shard_dataset
+
+    run = video_utils._CameraEncoderThread.run
+
+    def late_run(thread) -> None:
+        time.sleep(1.0)
+        run(thread)
+
+    monkeypatch.setattr(video_utils._CameraEncoderThread, "run", late_run)
+    height, width, length = 32, 56, 60
+    dataset = create_shard_dataset("mosaic/door_panda", tmp_path / "shard", "panda", height, width, horizon=length)
+    features = dataset_features(height, width)
+    rng = np.random.default_rng(0)
+    for step in range(length):
+        dataset.add_frame(_episode_frame(features, rng, step, length) | {"task": "open the door"})
+    dataset.save_episode()
+    dataset.finalize()
+    (video,) = (tmp_path / "shard" / "videos").rglob("*.mp4")
+    with av.open(str(video)) as container:
+        assert sum(1 for _ in container.decode(video=0)) == length
