@@ -4,4 +4,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."  # paths below are relative to the repository root
 source scripts/setup.sh
-python -m pytest -q --durations=15 "$@"  # the 15 slowest tests close the report
+# One pytest worker per core (at most 4), each test file on one worker so its module fixtures are built once; most
+# tests wait on a subprocess (a collection, lerobot-train, mosaic-eval) for much of their time. The 15 slowest tests
+# close the report.
+python -m pytest -q --numprocesses=auto --maxprocesses=4 --dist=loadfile --durations=15 "$@"

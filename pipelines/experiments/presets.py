@@ -80,7 +80,7 @@ PRESETS: dict[str, ExperimentPreset] = {
     ),
     # Minutes, end to end; CI runs learning and fine-tune with it.
     "smoke": ExperimentPreset(
-        image_size="32x56", episodes=2, steps=2, batch_size=4, train_obs_frames=2, vision_backbone="conv", save_every=2,
+        image_size="32x56", episodes=1, steps=2, batch_size=4, train_obs_frames=2, vision_backbone="conv", save_every=2,
         eval_checkpoints=1, eval_episodes=1, eval_max_steps=8, seeds=1, single_task_tasks=("door",), multi_task_tasks=("door", "press_button"),
         novel_task_pool=("door", "press_button"), novel_task_tasks=("door",), fine_tune_tasks=("door",),
         fine_tune_fractions=(50, 100), fine_tune_steps=2, fine_tune_save_every=1, ablation_tasks=("door",),

@@ -75,11 +75,10 @@ def cluster(tmp_path_factory):
             current.unlink()
         for process in (worker, head):
             if process is not None and process.poll() is None:
-                os.killpg(process.pid, signal.SIGTERM)  # `ray start --block` stops its node's processes
-                try:
-                    process.wait(timeout=60)
-                except subprocess.TimeoutExpired:
-                    os.killpg(process.pid, signal.SIGKILL)
+                # every process of a node (raylet, GCS, workers) is in its `ray start`'s process group; SIGKILL
+                # skips the graceful stop of SIGTERM, which waits on each of them in turn
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
 
 
 def _collect(output: Path, address: str, variations: str) -> subprocess.Popen:

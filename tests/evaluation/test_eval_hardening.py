@@ -80,8 +80,10 @@ def test_a_killed_worker_stops_the_evaluation_and_keeps_the_finished_episodes(tm
             assert process.poll() is None, f"ended before any episode finished: {bytes(stderr)[-2000:]!r}"
             assert time.monotonic() < deadline, "no episode finished within 300 s"
             time.sleep(0.1)
-        workers = [pid for pid in _children(process.pid) if "spawn_main" in _cmdline(pid)]
-        assert len(workers) == 2, [_cmdline(pid) for pid in _children(process.pid)]
+        workers = [pid for pid in _children(process.pid) if "spawn_main" in _cmdline(pid) and _alive(pid)]
+        assert len(workers) == 2, (
+            [(_cmdline(pid), _alive(pid)) for pid in _children(process.pid)], process.poll(), bytes(stderr)[-2000:]
+        )
         os.kill(workers[0], signal.SIGKILL)  # as the out-of-memory killer does
         killed_at = time.monotonic()
         code = process.wait(timeout=120)  # the lost episode must not keep the command waiting

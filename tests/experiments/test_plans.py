@@ -32,7 +32,7 @@ def test_the_same_arguments_give_the_same_commands(recipe, preset_name, tmp_path
     for stage in first.stages:
         reads = [Path(a.split("=", 1)[1]) for a in stage.command if a.startswith(("--dataset.root=", "--policy.path="))]
         for path in reads:
-            assert any(path == m or m in path.parents for m in made), f"{stage.key} reads {path} before it is made"
+            assert made.intersection([path, *path.parents]), f"{stage.key} reads {path} before it is made"
         made.add(stage.output)
 
 

@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -82,13 +83,13 @@ def test_every_policy_learns_a_fixed_batch_and_round_trips_through_from_pretrain
 
 @pytest.fixture(scope="module")
 def trained_checkpoints(door_datasets, tmp_path_factory):
-    """One `lerobot-train` run of 2 steps per policy type on the tiny door datasets: type -> pretrained_model."""
+    """One `lerobot-train` run of 2 steps per policy type on the tiny door datasets: type -> pretrained_model. The
+    runs are independent single-threaded processes, so they run side by side, one per core."""
     agent_root, demo_root = door_datasets
     base = tmp_path_factory.mktemp("runs")
-    checkpoints = {}
-    for policy_type in POLICY_TYPES:
-        output = base / policy_type
-        result = _run(
+
+    def train(policy_type: str) -> subprocess.CompletedProcess:
+        return _run(
             "lerobot-train",
             [
                 f"--policy.type={policy_type}",
@@ -102,7 +103,7 @@ def trained_checkpoints(door_datasets, tmp_path_factory):
                 "--batch_size=4",
                 "--num_workers=0",
                 "--save_freq=2",
-                f"--output_dir={output}",
+                f"--output_dir={base / policy_type}",
                 "--policy.train_obs_frames=3",
                 "--policy.embed_dim=32",
                 "--policy.head_hidden_dim=32",
@@ -111,10 +112,13 @@ def trained_checkpoints(door_datasets, tmp_path_factory):
             ],
             base,
         )
+
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        results = dict(zip(POLICY_TYPES, pool.map(train, POLICY_TYPES), strict=True))
+    for policy_type, result in results.items():
         assert result.returncode == 0, f"{policy_type}:\n" + result.stdout[-3000:] + result.stderr[-3000:]
         assert "[robosuite" not in result.stdout + result.stderr  # training does not load the simulator
-        checkpoints[policy_type] = output / "checkpoints" / "last" / "pretrained_model"
-    return checkpoints
+    return {policy_type: base / policy_type / "checkpoints" / "last" / "pretrained_model" for policy_type in POLICY_TYPES}
 
 
 def test_every_trained_checkpoint_loads_through_lerobots_factory_and_acts(trained_checkpoints):
