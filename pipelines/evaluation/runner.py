@@ -141,6 +141,7 @@ def _collect(processes: list, readers: list, total: int) -> Iterator[EpisodeResu
     from multiprocessing.connection import wait
 
     running: dict[int, EpisodeSpec] = {}  # worker index -> the episode it said it started
+    finished: set[int] = set()  # workers that said "done": the queue had nothing left for them
     open_readers = dict(enumerate(readers))
     remaining = total
     while remaining:
@@ -152,14 +153,15 @@ def _collect(processes: list, readers: list, total: int) -> Iterator[EpisodeResu
                 kind, payload = reader.recv()
             except (EOFError, OSError):  # the worker is gone (a message cut short reads as EOF too)
                 del open_readers[index]
-                processes[index].join(timeout=5)
-                # a worker that reported all it started and is still exiting (a loaded machine can take longer than
-                # the wait to tear torch and the renderer down) finished its share; one that dies mid-episode or
-                # exits with an error did not
-                if remaining and (index in running or processes[index].exitcode not in (0, None)):
-                    raise WorkerDied(_death(processes[index], running.get(index))) from None
-                continue
-            if kind == "start":
+                if index in finished or not remaining:
+                    continue
+                # it ended without saying "done": killed (before, during or between episodes) or crashed; the exit
+                # code names how, once the process is reaped (slow on a loaded machine)
+                processes[index].join(timeout=60)
+                raise WorkerDied(_death(processes[index], running.get(index))) from None
+            if kind == "done":
+                finished.add(index)
+            elif kind == "start":
                 running[index] = payload
             elif kind == "result":
                 running.pop(index, None)
@@ -215,6 +217,7 @@ def _worker_main(
         while (spec := tasks.get()) is not None:
             results.send(("start", spec))
             results.send(("result", worker.run(spec)))
+        results.send(("done", None))
     except Exception as error:  # report it rather than die silently; the parent decides
         results.send(("error", (_picklable(error), traceback.format_exc())))
     finally:

@@ -303,8 +303,8 @@ class _KilledMidEpisode(_SlowToExit):
 
 
 def test_a_worker_still_exiting_after_its_last_episode_is_not_taken_for_dead():
-    """A finished worker may take more than the 5 s wait to exit on a loaded machine: once every episode it started
-    has been reported, it is not reported as "died (it closed its pipe but did not exit)"."""
+    """A finished worker may take long to exit on a loaded machine: once it said "done" (the queue had nothing left
+    for it), its closed pipe is not a death, whatever its exit code says yet."""
     from multiprocessing import Pipe
 
     from pipelines.evaluation.runner import _collect
@@ -313,12 +313,33 @@ def test_a_worker_still_exiting_after_its_last_episode_is_not_taken_for_dead():
     busy_reader, busy_writer = Pipe(duplex=False)
     done_writer.send(("start", "episode 0"))
     done_writer.send(("result", "result 0"))
+    done_writer.send(("done", None))
     done_writer.close()  # finished its share, still tearing down
     busy_writer.send(("start", "episode 1"))
     results = _collect([_SlowToExit(), _SlowToExit()], [done_reader, busy_reader], total=2)
     assert next(results) == "result 0"
     busy_writer.send(("result", "result 1"))
     assert list(results) == ["result 1"]
+
+
+def test_a_worker_gone_between_episodes_without_saying_done_is_reported_dead():
+    """Killed after its last result and before it took the next episode, still being torn down (no exit code yet):
+    a death, although the other worker could run the rest of the queue."""
+    from multiprocessing import Pipe
+
+    from pipelines.evaluation.options import WorkerDied
+    from pipelines.evaluation.runner import _collect
+
+    gone_reader, gone_writer = Pipe(duplex=False)
+    busy_reader, busy_writer = Pipe(duplex=False)
+    gone_writer.send(("start", "episode 0"))
+    gone_writer.send(("result", "result 0"))
+    gone_writer.close()
+    for episode in (1, 2):
+        busy_writer.send(("start", f"episode {episode}"))
+        busy_writer.send(("result", f"result {episode}"))
+    with pytest.raises(WorkerDied, match="evaluation worker mosaic-eval-0 died"):
+        list(_collect([_SlowToExit(), _SlowToExit()], [gone_reader, busy_reader], total=3))
 
 
 def test_a_worker_gone_mid_episode_is_reported_dead():
