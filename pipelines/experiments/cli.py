@@ -34,10 +34,11 @@ ASSUMED_GPU_SECONDS_PER_STEP = 0.3
 MEASURED_ROLLOUT_STEPS_PER_S = 13.5
 """Control steps per second per evaluation worker with MOSAIC at 100x180, measured on this project's 2-core
 machine (README, speed section): the rollout part of the estimate."""
-MEASURED_CPU_SECONDS_PER_STEP = {"resnet18": 2.5, "conv": 1.1}
+MEASURED_CPU_SECONDS_PER_STEP = {"resnet18": 2.5, "conv": 0.7}
 """Seconds per MOSAIC training step on this project's 2-core machine at 48x88, batch 16, 7 frames (the ``cpu``
-preset's sizes), per ``--policy.vision_backbone``: lerobot-train's ``updt_s`` (conv: 0.95-1.14 s over a 500-step
-run, data loading sharing the cores). The training part of the estimate on ``--policy.device=cpu``, scaled by
+preset's sizes), per ``--policy.vision_backbone``: lerobot-train's ``updt_s`` (conv: 0.64-0.69 s over the unshared
+stretches of a 5000-step run with batched augmentation; resnet18: a 500-step run with the per-sequence augmentation).
+The training part of the estimate on ``--policy.device=cpu``, scaled by
 batch size and pixels per image."""
 CPU_REFERENCE_SIZES = (16, 48, 88)
 """Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""

@@ -62,10 +62,11 @@ class ExperimentPreset:
 
 PRESETS: dict[str, ExperimentPreset] = {
     "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
-    # About 50 minutes of training per MOSAIC model on 2 cores with the small conv trunk (1.1 s per step at batch 16,
-    # 48x88; the paper's resnet18 trunk: 2.5 s, about 2 hours); novel-task models train on 3 tasks.
+    # About an hour of training per MOSAIC model on 2 cores with the small conv trunk (0.7 s per step at batch 16,
+    # 48x88; the paper's resnet18 trunk: 2.5 s); 10-step action chunks; novel-task models train on 3 tasks.
     "cpu": ExperimentPreset(
-        image_size="48x88", episodes=40, steps=2700, batch_size=16, vision_backbone="conv", save_every=900,
+        image_size="48x88", episodes=40, steps=5000, batch_size=16, vision_backbone="conv", save_every=2500,
+        train_options=("--policy.action_chunk=10",),
         eval_checkpoints=1, eval_episodes=10, seeds=1, single_task_tasks=("door", "press_button"), multi_task_tasks=("door", "drawer", "press_button"),
         novel_task_pool=("door", "drawer", "press_button"), novel_task_tasks=("door",), fine_tune_tasks=("door",),
         fine_tune_steps=900, fine_tune_save_every=300, num_workers=1,

@@ -102,13 +102,13 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
-    # 5 methods x 2700 steps at the 1.1 s per step of the conv trunk at the cpu preset's own sizes: 4.1 hours
+    # 5 methods x 5000 steps at the 0.7 s per step of the conv trunk at the cpu preset's own sizes: 4.9 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
-    assert "training about 4.1 hours on 2 CPU cores (1.1 s per step" in capsys.readouterr().out
-    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, 9.4 hours
+    assert "training about 4.9 hours on 2 CPU cores (0.7 s per step" in capsys.readouterr().out
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, 17.4 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 9.4 hours on 2 CPU cores (2.5 s per step" in capsys.readouterr().out
+    assert "training about 17.4 hours on 2 CPU cores (2.5 s per step" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
