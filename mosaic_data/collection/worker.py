@@ -159,8 +159,8 @@ def create_shard_dataset(repo_id: str, root: Path, robot: str, height: int, widt
 
     LeRobot's streaming encoder is built for cameras: when its queue is full for 0.1 s it drops the frame and only
     logs it. A collection on a loaded machine (the encoder thread starved for a moment) would then write a video
-    shorter than its episodes. With a queue of ``horizon`` frames a simulated episode never waits and never loses a
-    frame; the queue is emptied at every ``save_episode``.
+    shorter than its episodes. An episode adds at most ``horizon`` frames, so with a queue of ``horizon + 1`` it never
+    waits and never loses a frame; the encoder gets a new queue at every episode.
     """
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
