@@ -73,6 +73,9 @@ class DemoConditionedConfig(PreTrainedConfig):
 
     # Vision trunk: "resnet18" (the paper's, 2.8M params) or "conv" (4 strided convs, 0.39M params, for CPU training); same 256 x H/16 x W/16 features.
     vision_backbone: VisionBackbone = "resnet18"
+    # Channels of the conv trunk's features, the width of everything after it (attention, embedding): 256 as the
+    # resnet18 trunk's; fewer train faster (the cpu preset's 128). The resnet18 trunk always gives 256.
+    conv_channels: int = 256
     # Per-frame embedding size fed to the action and inverse-dynamics heads.
     embed_dim: int = 256
     # Hidden width of the action / inverse-dynamics MLPs.
@@ -129,6 +132,13 @@ class DemoConditionedConfig(PreTrainedConfig):
             raise ValueError(
                 f"`vision_backbone` must be one of {VISION_BACKBONES}, got {self.vision_backbone!r}: "
                 "pass e.g. --policy.vision_backbone=conv."
+            )
+        if self.conv_channels < 8 or self.conv_channels % 8:
+            raise ValueError(f"`conv_channels` must be a multiple of 8 (e.g. 128 or 256), got {self.conv_channels}.")
+        if self.vision_backbone != "conv" and self.conv_channels != 256:
+            raise ValueError(
+                f"`conv_channels`={self.conv_channels} sets the conv trunk's width; the {self.vision_backbone} trunk "
+                "gives 256: pass --policy.vision_backbone=conv with it."
             )
         if self.n_demo_frames < 2:
             raise ValueError(f"`n_demo_frames` must be >= 2 (first and last frame), got {self.n_demo_frames}.")

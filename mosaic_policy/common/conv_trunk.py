@@ -1,12 +1,14 @@
 """A small strided CNN trunk for training on CPU (``--policy.vision_backbone=conv``), trained from scratch.
 
-Four 3x3 convolutions of stride 2 (32, 64, 128, 256 channels), each followed by BatchNorm and ReLU: images
-(N, 3, H, W) in [0, 1] -> features (N, 256, H/16, W/16 rounded up), exactly the shape of
-:class:`~mosaic_policy.common.resnet_trunk.ResNetTrunk` for every input size (a stride-2 3x3 convolution with
+Four 3x3 convolutions of stride 2 (32, 64, 128 and `channels` channels, 256 by default), each followed by
+BatchNorm and ReLU: images (N, 3, H, W) in [0, 1] -> features (N, channels, H/16, W/16 rounded up), at 256
+channels exactly the shape of :class:`~mosaic_policy.common.resnet_trunk.ResNetTrunk` for every input size (a stride-2 3x3 convolution with
 padding 1 maps n to ceil(n / 2), as ResNet's stem, max-pool and strided stages do), so every policy's attention,
 embeddings and keypoints work unchanged. 0.39 M parameters against the ResNet trunk's 2.78 M; on CPU at 48x88
-its forward + backward is several times cheaper; the attention, which the trunk does not change, then takes half
-of a MOSAIC training step (``python -m pipelines.bench.policy_train_step --compare-trunks`` prints the parts).
+its forward + backward is several times cheaper. The attention, the embedding and the heads work on the trunk's
+channels, so fewer of them (``--policy.conv_channels=128``) make the whole model cheaper: at 256 the attention
+takes half of a MOSAIC training step (``python -m pipelines.bench.policy_train_step --compare-trunks`` prints the
+parts and the step at each width).
 
 Robomimic's small image encoders end with a spatial soft-argmax (keypoints); this one keeps the spatial feature
 map, because MOSAIC's and T-OSIL's attention attends over its h x w locations and the embeddings keep where
@@ -18,21 +20,21 @@ import copy
 import torch
 from torch import Tensor, nn
 
-WIDTHS = (32, 64, 128, 256)
-"""Output channels of the four stride-2 convolutions."""
+WIDTHS = (32, 64, 128)
+"""Output channels of the first three stride-2 convolutions; the fourth gives the trunk's `channels`."""
 
 
 class ConvTrunk(nn.Module):
-    """Images (N, 3, H, W) in [0, 1] -> features (N, 256, H/16, W/16 rounded up); 100x180 -> 256x7x12."""
+    """Images (N, 3, H, W) in [0, 1] -> features (N, channels, H/16, W/16 rounded up); 100x180 -> 256x7x12."""
 
-    out_channels = WIDTHS[-1]
     channels_last = False
 
-    def __init__(self):
+    def __init__(self, channels: int = 256):
         super().__init__()
+        self.out_channels = channels
         layers: list[nn.Module] = []
         in_channels = 3
-        for width in WIDTHS:
+        for width in (*WIDTHS, channels):
             layers += [
                 nn.Conv2d(in_channels, width, 3, stride=2, padding=1, bias=False),
                 nn.BatchNorm2d(width),
@@ -49,7 +51,7 @@ class ConvTrunk(nn.Module):
 
     def feature_shape(self, height: int, width: int) -> tuple[int, int, int]:
         """(channels, h, w) of the features for an input of this size: each stride-2 layer rounds up."""
-        for _ in WIDTHS:
+        for _ in range(len(WIDTHS) + 1):
             height, width = (height + 1) // 2, (width + 1) // 2
         return self.out_channels, height, width
 

@@ -8,7 +8,8 @@ from .configuration_demo import VISION_BACKBONES, DemoConditionedConfig
 def make_trunk(config: DemoConditionedConfig) -> nn.Module:
     """A new trunk for ``config.vision_backbone``: "resnet18" (the paper's) or "conv" (small, for CPU training).
 
-    Both map images (N, 3, H, W) in [0, 1] to (N, 256, ceil(H/16), ceil(W/16)) features and provide
+    Both map images (N, 3, H, W) in [0, 1] to (N, C, ceil(H/16), ceil(W/16)) features (C: 256, or the conv
+    trunk's `conv_channels`) and provide
     ``out_channels``, ``feature_shape(h, w)`` and ``fused_for_inference()``."""
     backbone = config.vision_backbone
     if backbone == "resnet18":
@@ -18,5 +19,5 @@ def make_trunk(config: DemoConditionedConfig) -> nn.Module:
     if backbone == "conv":
         from .conv_trunk import ConvTrunk
 
-        return ConvTrunk()
+        return ConvTrunk(config.conv_channels)
     raise ValueError(f"`vision_backbone` must be one of {VISION_BACKBONES}, got {backbone!r}.")

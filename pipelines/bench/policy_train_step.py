@@ -15,7 +15,8 @@ falls on all of them alike.
 
 `--compare-trunks`: a full MOSAIC training step (the same, with its default 7 observation + 4 demo frames) at
 the `cpu` preset's sizes (batch 16, 48x88 unless given) with `--policy.vision_backbone=resnet18` and with
-`conv`, in alternating rounds (one warm-up round first); prints each one's parameters, median ms per step, the
+`conv` (256 channels, and 128: `--policy.conv_channels=128`, the cpu preset's), in alternating rounds (one
+warm-up round first); prints each one's parameters, median ms per step, the
 ratio, and where a step's time goes, each part timed alone on the step's sizes: the online trunk's forward +
 backward and the EMA target trunk's forward (batch x 11 frames), the online attention stack's forward + backward
 and the target attention's forward, the four augmentation calls (two views of demo and observation frames), and
@@ -91,30 +92,40 @@ def time_train_steps(batch_size: int, steps: int, height: int, width: int) -> li
     return times[1:]
 
 
+TRUNK_VARIANTS = {
+    "resnet18": {"vision_backbone": "resnet18"},
+    "conv": {"vision_backbone": "conv"},
+    "conv 128": {"vision_backbone": "conv", "conv_channels": 128},
+}
+"""The models --compare-trunks times: the paper's trunk, the conv trunk at the same 256 channels, and the conv
+trunk at 128 channels (the cpu preset's: attention, embedding and heads at that width)."""
+
 TRUNK_PARTS = ("step", "trunk fwd+bwd", "target trunk fwd", "attention fwd+bwd", "target attention fwd", "augmentation")
 
 
 def compare_trunks(batch_size: int, height: int, width: int, rounds: int) -> dict[str, dict]:
     """Per vision backbone: parameters of its trunk and median seconds of a full MOSAIC training step and of its
     parts (TRUNK_PARTS), timed in alternating rounds after one warm-up round."""
-    from mosaic_policy.common.configuration_demo import VISION_BACKBONES
     from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
     runs = {}
-    for backbone in VISION_BACKBONES:
+    for name, overrides in TRUNK_VARIANTS.items():
         torch.manual_seed(0)
-        config = paper_config(height, width, vision_backbone=backbone)
+        config = paper_config(height, width, **overrides)
         policy = MosaicPolicy(config).train()
-        runs[backbone] = (policy, torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr))
+        runs[name] = (policy, torch.optim.Adam(policy.get_optim_params(), lr=config.optimizer_lr))
     batch = synthetic_batch(config, batch_size, height, width)
     d, t = config.n_demo_frames, config.train_obs_frames
     frames = torch.rand(batch_size * (d + t), 3, height, width)
-    c, h, w = runs["conv"][0].model.feature_shape
-    demo_features = torch.randn(batch_size, c, d, h, w, requires_grad=True)
-    obs_features = torch.randn(batch_size, c, t, h, w, requires_grad=True)
+    features = {}  # per variant, demo and observation features of its width for the attention's timing
+    for name, (policy, _) in runs.items():
+        c, h, w = policy.model.feature_shape
+        features[name] = (torch.randn(batch_size, c, d, h, w, requires_grad=True),
+                          torch.randn(batch_size, c, t, h, w, requires_grad=True))
     times = {backbone: {part: [] for part in TRUNK_PARTS} for backbone in runs}  # (wall s, CPU s) per round
     for round_ in range(rounds + 1):  # the first round warms up oneDNN
         for backbone, (policy, optimizer) in runs.items():
+            demo_features, obs_features = features[backbone]
             took = {}
             with _timed(took, "step"):
                 train_step(policy, optimizer, batch)
@@ -163,7 +174,7 @@ def print_trunk_comparison(results: dict[str, dict], batch_size: int, height: in
     )
     for backbone, r in results.items():
         print(
-            f"  {backbone:<8}: {r['step'] * 1e3:.0f} ms/step wall, {r['step cpu'] * 1e3:.0f} ms CPU; trunk "
+            f"  {backbone:<9}: {r['step'] * 1e3:.0f} ms/step wall, {r['step cpu'] * 1e3:.0f} ms CPU; trunk "
             f"{r['params'] / 1e6:.2f} M params (policy {r['policy_params'] / 1e6:.2f} M)"
         )
         for clock, suffix in (("wall", ""), ("CPU", " cpu")):
@@ -171,13 +182,17 @@ def print_trunk_comparison(results: dict[str, dict], batch_size: int, height: in
             rest = step - sum(r[part + suffix] for part in TRUNK_PARTS[1:])
             parts = [(part, r[part + suffix]) for part in TRUNK_PARTS[1:]] + [("rest", rest)]
             print(f"    {clock:<4} " + ", ".join(f"{part} {s * 1e3:.0f} ms ({s / step:.0%})" for part, s in parts))
-    old, new = results["resnet18"], results["conv"]
-    print(
-        f"  conv vs resnet18: {old['step'] / new['step']:.2f}x faster per step (wall), "
-        f"{old['step cpu'] / new['step cpu']:.2f}x (CPU); trunk fwd+bwd {old['trunk fwd+bwd'] / new['trunk fwd+bwd']:.1f}x"
-        f" (wall), target trunk fwd {old['target trunk fwd'] / new['target trunk fwd']:.1f}x (wall); trunk parameters "
-        f"{old['params'] / new['params']:.1f}x fewer"
-    )
+    old = results["resnet18"]
+    for name, new in results.items():
+        if name == "resnet18":
+            continue
+        print(
+            f"  {name} vs resnet18: {old['step'] / new['step']:.2f}x faster per step (wall), "
+            f"{old['step cpu'] / new['step cpu']:.2f}x (CPU); trunk fwd+bwd "
+            f"{old['trunk fwd+bwd'] / new['trunk fwd+bwd']:.1f}x (wall), target trunk fwd "
+            f"{old['target trunk fwd'] / new['target trunk fwd']:.1f}x (wall); trunk parameters "
+            f"{old['params'] / new['params']:.1f}x fewer"
+        )
 
 
 def time_attention(batch_size: int, feature_shape: tuple[int, int, int], repeats: int) -> dict[str, float]:

@@ -244,18 +244,19 @@ def test_gradients_reach_every_trainable_parameter_and_lerobots_factory_finds_th
 
 @pytest.mark.parametrize("policy_type", POLICY_TYPES)
 def test_every_policy_trains_acts_and_round_trips_with_the_conv_trunk(policy_type, tmp_path):
-    """`vision_backbone="conv"` builds the small trunk in every type: a training step reaches every trainable
-    parameter, the saved config.json keeps the choice, and the loaded policy acts exactly as the saved one (with
-    its BatchNorm-folded inference copy of the trunk)."""
+    """`vision_backbone="conv"` builds the small trunk in every type, at the width `conv_channels` sets (every
+    task context and head follows it): a training step reaches every trainable parameter, the saved config.json
+    keeps the choice, and the loaded policy acts exactly as the saved one (with its BatchNorm-folded inference
+    copy of the trunk)."""
     from lerobot.configs.policies import PreTrainedConfig
 
     from mosaic_policy import policy_class
     from mosaic_policy.common.conv_trunk import ConvTrunk
 
     torch.manual_seed(0)
-    config = small_config(policy_type=policy_type, vision_backbone="conv")
+    config = small_config(policy_type=policy_type, vision_backbone="conv", conv_channels=64)
     policy = policy_class(policy_type)(config).train()
-    assert isinstance(policy.model.trunk, ConvTrunk) and policy.model.feature_shape == (256, 2, 4)
+    assert isinstance(policy.model.trunk, ConvTrunk) and policy.model.feature_shape == (64, 2, 4)
     assert all(isinstance(m, ConvTrunk) for name, m in policy.named_children() if name == "target_trunk")
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
     loss, _ = policy.forward(random_batch(config, seed=1))
@@ -267,9 +268,11 @@ def test_every_policy_trains_acts_and_round_trips_with_the_conv_trunk(policy_typ
     policy.update()
 
     policy.eval().save_pretrained(tmp_path / "ckpt")
-    assert PreTrainedConfig.from_pretrained(tmp_path / "ckpt").vision_backbone == "conv"
+    saved = PreTrainedConfig.from_pretrained(tmp_path / "ckpt")
+    assert saved.vision_backbone == "conv" and saved.conv_channels == 64
     loaded = policy_class(policy_type).from_pretrained(tmp_path / "ckpt").eval()
     assert loaded.config.vision_backbone == "conv" and isinstance(loaded.model.trunk, ConvTrunk)
+    assert loaded.model.feature_shape == (64, 2, 4)
     original, reloaded = policy.state_dict(), loaded.state_dict()
     assert original.keys() == reloaded.keys() and all(torch.equal(original[k], reloaded[k]) for k in original)
     chunks, _ = _chunks_after_one_demo(policy, loaded)

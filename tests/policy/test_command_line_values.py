@@ -35,3 +35,23 @@ def test_a_bad_vision_backbone_on_the_command_line_is_one_line_naming_the_choice
         draccus.parse(config_class=MosaicConfig, args=["--vision_backbone=resnet50"])
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--vision_backbone: invalid choice: 'resnet50' (choose from 'resnet18', 'conv')" in error
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--vision_backbone=conv", "--conv_channels=100"], "`conv_channels` must be a multiple of 8"),
+        (["--vision_backbone=resnet18", "--conv_channels=128"], "pass --policy.vision_backbone=conv with it"),
+    ],
+)
+def test_a_conv_width_that_cannot_be_built_is_refused_naming_the_fix(args, message):
+    """The conv trunk's width is the attention's: a multiple of 8 (heads, sinusoidal encodings), and only the conv
+    trunk has one to set."""
+    with pytest.raises(draccus.utils.ParsingError) as error:
+        draccus.parse(config_class=MosaicConfig, args=args)
+    assert message in str(error.value.__cause__ or error.value.__context__)
+
+
+def test_the_conv_width_reaches_the_config():
+    config = draccus.parse(config_class=MosaicConfig, args=["--vision_backbone=conv", "--conv_channels=128"])
+    assert (config.vision_backbone, config.conv_channels) == ("conv", 128)
