@@ -110,22 +110,35 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
     return text
 
 
-def _record_settings(output_dir: Path, args: argparse.Namespace, overrides: list[str], data_dir: Path | None) -> dict[str, Any]:
-    """DIR/experiment.json: the recipes run in DIR and their settings. Recipes sharing DIR share preset and data."""
+def _without_seeds(settings: dict[str, Any]) -> dict[str, Any]:
+    """Settings that decide what every stage computes: the number of seeds only adds or leaves out whole runs
+    (seed k's stages are the same whatever the count), so more seeds extend an experiment in place."""
+    return {**settings, "overrides": [o for o in settings["overrides"] if not o.startswith("seeds=")]}
+
+
+def _check_settings(output_dir: Path, args: argparse.Namespace, overrides: list[str], data_dir: Path | None) -> dict[str, Any]:
+    """DIR/experiment.json's record with this run's settings in it (not written); ExperimentError if DIR holds this
+    recipe with other settings, or another recipe with another preset or data (recipes sharing DIR share them)."""
     path = output_dir / EXPERIMENT_FILE
     record = json.loads(path.read_text()) if path.is_file() else {"recipes": {}}
     mine = {"preset": args.preset, "overrides": overrides, "tasks": args.tasks.split(",") if args.tasks else None,
             "data_dir": str(data_dir.absolute()) if data_dir else None}
     for recipe, theirs in record["recipes"].items():
-        same = all(theirs[k] == mine[k] for k in ("preset", "overrides", "data_dir"))
-        if recipe == args.recipe and theirs != mine or not same:
+        same = all(_without_seeds(theirs)[k] == _without_seeds(mine)[k] for k in ("preset", "overrides", "data_dir"))
+        if recipe == args.recipe and _without_seeds(theirs) != _without_seeds(mine) or not same:
             raise ExperimentError(
                 f"{output_dir} holds a {recipe} run with other settings ({theirs['preset']} {' '.join(theirs['overrides'])}): "
-                "rerun it with the same options to resume, or use another --output"
+                "rerun it with the same options to resume (--seeds may change), or use another --output"
             )
     record["recipes"][args.recipe] = mine
+    return record
+
+
+def _record_settings(output_dir: Path, args: argparse.Namespace, overrides: list[str], data_dir: Path | None) -> dict[str, Any]:
+    """Write DIR/experiment.json, the recipes run in DIR and their settings, after `_check_settings`."""
+    record = _check_settings(output_dir, args, overrides, data_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(record, indent=2))
+    (output_dir / EXPERIMENT_FILE).write_text(json.dumps(record, indent=2))
     return record
 
 
@@ -146,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
     plan = build_plan(args.recipe, preset, output_dir, args.data_dir, tasks)
     print(f"mosaic-experiment {args.recipe}, preset {args.preset}: {estimate_text(plan, preset)}", flush=True)
     if args.dry_run:
+        _check_settings(output_dir, args, overrides, args.data_dir)
         for stage in plan.stages:
             state = " (done)" if is_done(output_dir, stage) else ""
             print(f"\n# {stage.title}{state}\n{stage.shell_line()}")

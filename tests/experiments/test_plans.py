@@ -145,6 +145,21 @@ def test_a_folder_keeps_one_preset(tmp_path):
     assert json.loads((output / "experiment.json").read_text()) == record
 
 
+def test_more_seeds_extend_an_experiment_and_a_dry_run_refuses_what_the_run_would(tmp_path, capsys):
+    """A second seed of a finished run goes in the same folder (its first seed's stages are the same); any other
+    change is refused by the dry run as by the run (the dry run printed a plan the run then refused)."""
+    output = tmp_path / "exp"
+    first = ["run", "learning", "--preset", "smoke", "--set", "steps=4", "--output", str(output)]
+    cli._record_settings(output, cli.parse_args(first), ["steps=4"], None)
+    more = cli.parse_args([*first, "--seeds", "2"])
+    record = cli._record_settings(output, more, ["steps=4", "seeds=2"], None)
+    assert record["recipes"]["learning"]["overrides"] == ["steps=4", "seeds=2"]
+    assert cli.main([*first, "--seeds", "3", "--dry-run"]) == 0
+    assert "# train learning/door/mosaic/seed3" in capsys.readouterr().out
+    assert cli.main(["run", "learning", "--preset", "smoke", "--set", "steps=6", "--output", str(output), "--dry-run"]) == 2
+    assert "holds a learning run with other settings" in capsys.readouterr().err
+
+
 def test_an_interrupted_stage_resumes_where_it_can(tmp_path):
     from pipelines.experiments.stages import resume_command
 
