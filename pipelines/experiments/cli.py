@@ -74,13 +74,16 @@ def _duration(seconds: float, unit: str = "hours") -> str:
     return f"{seconds / 3600:.1f} {unit}"
 
 
-def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
-    """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours."""
+def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None = None) -> str:
+    """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours; with ``output_dir``,
+    only the stages not finished there (an extended or resumed experiment)."""
     from mosaic_data.tasks.spec import TASK_SPECS
 
-    train = [s for s in plan.stages if s.kind == "train"]
+    stages = [s for s in plan.stages if output_dir is None or not is_done(output_dir, s)]
+    finished = len(plan.stages) - len(stages)
+    train = [s for s in stages if s.kind == "train"]
     steps = sum(int(next(a for a in s.command if a.startswith("--steps=")).split("=")[1]) for s in train)
-    evaluations = [s for s in plan.stages if s.kind == "evaluate"]
+    evaluations = [s for s in stages if s.kind == "evaluate"]
     rollout_steps = 0
     for stage in evaluations:
         task = stage.command[stage.command.index("--task") + 1]
@@ -92,7 +95,8 @@ def estimate_text(plan: Plan, preset: ExperimentPreset) -> str:
                       if "--variations" in stage.command else len(TASK_SPECS[task].variations))
         rollout_steps += episodes * variations * horizon
     workers = max(1, preset.workers)
-    text = (f"{len(plan.stages)} stages: {len(train)} training runs ({steps} steps in all), "
+    left = f" left of {len(plan.stages)} ({finished} finished before)" if finished else ""
+    text = (f"{len(stages)} stages{left}: {len(train)} training runs ({steps} steps in all), "
             f"{len(evaluations)} evaluations (at most {rollout_steps} control steps, about "
             f"{_duration(rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S, 'CPU-hours')} of rollouts at "
             f"{MEASURED_ROLLOUT_STEPS_PER_S} steps/s per worker, {workers} workers)")
@@ -157,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     tasks = check_tasks(args.tasks.split(",")) if args.tasks else None
     output_dir = (args.output or Path("outputs/experiments") / f"{args.recipe}_{args.preset}").absolute()
     plan = build_plan(args.recipe, preset, output_dir, args.data_dir, tasks)
-    print(f"mosaic-experiment {args.recipe}, preset {args.preset}: {estimate_text(plan, preset)}", flush=True)
+    print(f"mosaic-experiment {args.recipe}, preset {args.preset}: {estimate_text(plan, preset, output_dir)}", flush=True)
     if args.dry_run:
         _check_settings(output_dir, args, overrides, args.data_dir)
         for stage in plan.stages:

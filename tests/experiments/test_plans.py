@@ -156,6 +156,15 @@ def test_more_seeds_extend_an_experiment_and_a_dry_run_refuses_what_the_run_woul
     assert record["recipes"]["learning"]["overrides"] == ["steps=4", "seeds=2"]
     assert cli.main([*first, "--seeds", "3", "--dry-run"]) == 0
     assert "# train learning/door/mosaic/seed3" in capsys.readouterr().out
+    plan = cli.build_plan("learning", cli.resolve_preset("smoke", ["steps=4", "seeds=2"]), output, None)
+    seed1 = [stage for stage in plan.stages if "seed1" in stage.title or stage.kind == "collect"]
+    for stage in seed1:  # the first seed's stages finished: the estimate counts the second seed's only
+        folder = cli.stage_folder(output, stage)
+        folder.mkdir(parents=True)
+        (folder / "done.json").write_text("{}")
+    text = cli.estimate_text(plan, cli.resolve_preset("smoke", ["steps=4", "seeds=2"]), output)
+    assert text.startswith(f"{len(plan.stages) - len(seed1)} stages left of {len(plan.stages)} ({len(seed1)} finished before)")
+    assert "1 training runs (4 steps in all)" in text
     assert cli.main(["run", "learning", "--preset", "smoke", "--set", "steps=6", "--output", str(output), "--dry-run"]) == 2
     assert "holds a learning run with other settings" in capsys.readouterr().err
 
