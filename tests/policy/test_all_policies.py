@@ -139,6 +139,38 @@ def test_every_trained_checkpoint_loads_through_lerobots_factory_and_acts(traine
         assert action.shape == (1, 7) and torch.isfinite(action).all(), policy_type
 
 
+def test_the_demo_dependence_bench_compares_the_right_and_a_wrong_demonstration(trained_checkpoints, door_datasets, tmp_path, capsys):
+    """`python -m pipelines.bench.demo_dependence` on a lerobot-train checkpoint and LeRobot datasets: a table per
+    variation of the pair, every tenth of the episode, distances in cm; the policy's targets move with the
+    demonstration; a folder without the datasets is one line naming the command that makes them."""
+    from pipelines.bench import demo_dependence
+
+    agent_root, demo_root = door_datasets
+    (tmp_path / "mosaic").mkdir()
+    (tmp_path / "mosaic" / "door_panda").symlink_to(agent_root)
+    (tmp_path / "mosaic" / "door_sawyer").symlink_to(demo_root)
+    checkpoint = str(trained_checkpoints["mosaic"])
+    demo_dependence.main(["--policy.path", checkpoint, "--data-dir", str(tmp_path), "--variations", "0,1",
+                          "--episodes", "1", "--demos", "1", "--every", "3"])
+    rows = [line.strip("|").split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "%" in line]
+    assert len(rows) == 2 * demo_dependence.PARTS and all(len(row) == 4 for row in rows)
+    assert all(float(value) >= 0 for row in rows for value in row[1:])
+
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    policy, postprocessor = demo_dependence.load_policy(trained_checkpoints["mosaic"])
+    agent_data, demo_data = (LeRobotDataset(f"mosaic/door_{robot}", root=tmp_path / "mosaic" / f"door_{robot}")
+                             for robot in ("panda", "sawyer"))
+    table = demo_dependence.dependence_table(
+        policy, postprocessor, demo_dependence.episodes_of(agent_data, 0, 1),
+        [demo_dependence.episodes_of(demo_data, 0, 1)[0][0]], [demo_dependence.episodes_of(demo_data, 1, 1)[0][0]], 3,
+    )
+    assert table.shape == (demo_dependence.PARTS, 3) and (table[:, 2] > 0).any()
+
+    with pytest.raises(SystemExit, match="no dataset at .*mosaic-data collect --task door"):
+        demo_dependence.main(["--policy.path", checkpoint, "--data-dir", str(tmp_path / "none")])
+
+
 def test_mosaic_eval_puts_every_policy_side_by_side_with_its_confusion_matrix(trained_checkpoints, tmp_path):
     output = tmp_path / "eval" / "results.json"
     paths = [f"--policy.path={checkpoint}" for checkpoint in trained_checkpoints.values()]
