@@ -1,10 +1,10 @@
 """A small strided CNN trunk for training on CPU (``--policy.vision_backbone=conv``), trained from scratch.
 
 Four 3x3 convolutions of stride 2 (32, 64, 128 and `channels` channels, 256 by default), each followed by
-BatchNorm and ReLU: images (N, 3, H, W) in [0, 1] -> features (N, channels, H/16, W/16 rounded up), at 256
-channels exactly the shape of :class:`~mosaic_policy.common.resnet_trunk.ResNetTrunk` for every input size (a stride-2 3x3 convolution with
-padding 1 maps n to ceil(n / 2), as ResNet's stem, max-pool and strided stages do), so every policy's attention,
-embeddings and keypoints work unchanged. 0.39 M parameters against the ResNet trunk's 2.78 M; on CPU at 48x88
+BatchNorm and ReLU: images (N, 3, H, W) in [0, 1] -> features (N, channels, H/16, W/16 rounded up). At 256
+channels that is exactly the shape of :class:`~mosaic_policy.common.resnet_trunk.ResNetTrunk` for every input
+size (a stride-2 3x3 convolution with padding 1 maps n to ceil(n / 2), as ResNet's stem, max-pool and strided
+stages do), so every policy's attention, embeddings and keypoints work unchanged. 0.39 M parameters against the ResNet trunk's 2.78 M; on CPU at 48x88
 its forward + backward is several times cheaper. The attention, the embedding and the heads work on the trunk's
 channels, so fewer of them (``--policy.conv_channels=128``) make the whole model cheaper: at 256 the attention
 takes half of a MOSAIC training step (``python -m pipelines.bench.policy_train_step --compare-trunks`` prints the
