@@ -15,8 +15,8 @@ falls on all of them alike.
 
 `--compare-trunks`: a full MOSAIC training step (the same, with its default 7 observation + 4 demo frames) at
 the `cpu` preset's sizes (batch 16, 48x88 unless given) with `--policy.vision_backbone=resnet18` and with
-`conv` (256 channels, and 128: `--policy.conv_channels=128`, the cpu preset's), in alternating rounds (one
-warm-up round first); prints each one's parameters, median ms per step, the
+`conv` (256 channels, and 128: `--policy.conv_channels=128`), in alternating rounds (one warm-up round
+first); prints each one's parameters, median ms per step, the
 ratio, and where a step's time goes, each part timed alone on the step's sizes: the online trunk's forward +
 backward and the EMA target trunk's forward (batch x 11 frames), the online attention stack's forward + backward
 and the target attention's forward, the four augmentation calls (two views of demo and observation frames), and
@@ -98,7 +98,7 @@ TRUNK_VARIANTS = {
     "conv 128": {"vision_backbone": "conv", "conv_channels": 128},
 }
 """The models --compare-trunks times: the paper's trunk, the conv trunk at the same 256 channels, and the conv
-trunk at 128 channels (the cpu preset's: attention, embedding and heads at that width)."""
+trunk at 128 channels (`--policy.conv_channels=128`: attention, embedding and heads at that width)."""
 
 TRUNK_PARTS = ("step", "trunk fwd+bwd", "target trunk fwd", "attention fwd+bwd", "target attention fwd", "augmentation")
 
