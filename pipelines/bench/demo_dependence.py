@@ -17,8 +17,6 @@ simulator).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 from pathlib import Path
 
 import numpy as np
@@ -34,22 +32,11 @@ VARIATION_KEY = "variation"
 
 
 def load_policy(path: Path):
-    """(policy, postprocessor) of a lerobot-train checkpoint, as mosaic-eval loads them."""
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import make_pre_post_processors
+    """(policy, postprocessor) of a lerobot-train checkpoint, loaded by mosaic-eval's own agent."""
+    from pipelines.evaluation.agents import AgentSpec, PolicyAgent
 
-    from pipelines.evaluation.agents import policy_class, register_policy_types, resolve_checkpoint
-
-    path = resolve_checkpoint(path)
-    register_policy_types()
-    config = PreTrainedConfig.from_pretrained(path)
-    config.device = "cpu"
-    with contextlib.redirect_stdout(io.StringIO()):
-        policy = policy_class(path, config.type).from_pretrained(path, config=config).eval()
-    _, postprocessor = make_pre_post_processors(
-        config, pretrained_path=str(path), postprocessor_overrides={"device_processor": {"device": "cpu"}}
-    )
-    return policy, postprocessor
+    agent = PolicyAgent.from_spec(AgentSpec(kind="policy", label="policy", path=str(path)))
+    return agent.policy, agent.postprocessor
 
 
 def episodes_of(dataset, variation: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -74,7 +61,7 @@ def first_targets(policy, postprocessor, demo: torch.Tensor, frames: torch.Tenso
     """(T, 3) unnormalised position targets the policy gives first for each frame, conditioned on ``demo``."""
     policy.reset()
     policy.set_demo(demo)
-    chunks = [policy.predict_action_chunk({CAMERA_KEY: frame[None]})[:, 0] for frame in frames]
+    chunks = [policy.predict_action_chunk({CAMERA_KEY: frame[None].to(policy.device)})[:, 0] for frame in frames]
     return postprocessor(torch.cat(chunks))[:, :3].numpy()
 
 
