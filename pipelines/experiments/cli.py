@@ -127,9 +127,11 @@ def _check_settings(output_dir: Path, args: argparse.Namespace, overrides: list[
     record = json.loads(path.read_text()) if path.is_file() else {"recipes": {}}
     mine = {"preset": args.preset, "overrides": overrides, "tasks": args.tasks.split(",") if args.tasks else None,
             "data_dir": str(data_dir.absolute()) if data_dir else None}
+    wanted = _without_seeds(mine)
     for recipe, theirs in record["recipes"].items():
-        same = all(_without_seeds(theirs)[k] == _without_seeds(mine)[k] for k in ("preset", "overrides", "data_dir"))
-        if recipe == args.recipe and _without_seeds(theirs) != _without_seeds(mine) or not same:
+        held = _without_seeds(theirs)
+        same = all(held[k] == wanted[k] for k in ("preset", "overrides", "data_dir"))
+        if recipe == args.recipe and held != wanted or not same:
             raise ExperimentError(
                 f"{output_dir} holds a {recipe} run with other settings ({theirs['preset']} {' '.join(theirs['overrides'])}): "
                 "rerun it with the same options to resume (--seeds may change), or use another --output"
