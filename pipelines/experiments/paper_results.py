@@ -2,9 +2,10 @@
 Learning", ICRA 2022, arXiv 2110.13423): one-shot success in percent, as printed in the paper.
 
 These are data from the paper, never results of this toolkit; reports print them beside our numbers and label
-them "paper". On record: every cell of Table I and MOSAIC's columns of Table II; the appendix ablations are not,
-and their cells are reported as "n/r" (not recorded here) rather than guessed. Adding a number means copying it from the paper's table, with
-the table named in :data:`SOURCES`.
+them "paper". On record: every cell of Table I, MOSAIC's columns of Table II and the appendix's single-task
+ablations. A cell the paper has no number for (this project's own ablation rows, the data fractions that the paper
+only plots, pick_place in Table II) is reported as "n/r" (not reported) rather than guessed. Adding a number means
+copying it from the paper's table, with the table named in :data:`SOURCES`.
 """
 
 from __future__ import annotations
@@ -33,12 +34,29 @@ TABLE_II: dict[str, dict[str, float]] = {
 }
 """Column -> task -> success % of MOSAIC in Table II (pick_place is not in that table)."""
 
+SINGLE_TASK_ABLATIONS: dict[str, dict[str, float]] = {
+    "contrastive_off": {"door": 62.5, "drawer": 60.8, "press_button": 73.9, "pick_place": 69.5, "stack_block": 36.7,
+                        "basketball": 19.7, "nut_assembly": 15.6},
+    "positive_same": {"pick_place": 12.3, "basketball": 53.8, "nut_assembly": 12.2},
+    "positive_fixed": {"pick_place": 80.2, "basketball": 52.5, "nut_assembly": 12.2},
+    "contrastive_before": {"pick_place": 23.5, "basketball": 24.7, "nut_assembly": 17.8},
+    "contrastive_after": {"pick_place": 51.5, "basketball": 27.2, "nut_assembly": 22.6},
+}
+"""Ablation variant of the ablations recipe -> task -> success % of the appendix's single-task ablations.
+
+``contrastive_off`` is the appendix's "Single-task w/o Contra." row (its first ablation table); the positives and
+placements are the second table's No-Temp (``positive_same``), Fix-Temp (``positive_fixed``), Pre-Attn
+(``contrastive_before``) and Post-Attn (``contrastive_after``) columns, measured on three tasks only. The reference
+row (``paper``) is Table I's single-task MOSAIC: the appendix's first table prints 71.1 and 88.8 for press_button
+and pick_place where Table I prints 71.7 and 88.5. The appendix's multi-task rows (without contrast, BYOL) have no
+row here because the ablations recipe trains single-task models."""
+
 SOURCES = {
     "single-task": "paper, Table I (single-task)",
     "multi-task": "paper, Table I (multi-task)",
     "novel-task": "paper, Table II (Novel-task)",
     "fine-tune": "paper, Table II (Fine-tune)",
-    "ablations": "paper, appendix ablation tables",
+    "ablations": "paper, appendix ablation tables (single-task rows; the reference row from Table I)",
     "learning": "paper, Table I (single-task: every variation, the paper's training budget)",
 }
 
@@ -54,6 +72,10 @@ def paper_number(table: str, row: str, task: str, fraction: int | None = None, m
         if table == "fine-tune" and mode == "scratch":
             return TABLE_I[("single-task", "mosaic")].get(task)
         return TABLE_II[table].get(task)
+    if table == "ablations":
+        if row == "paper":
+            return TABLE_I[("single-task", "mosaic")].get(task)
+        return SINGLE_TASK_ABLATIONS.get(row, {}).get(task)
     if table == "learning":  # one method trained on one task: the single-task setup of Table I
         table = "single-task"
     return TABLE_I.get((table, row), {}).get(task)

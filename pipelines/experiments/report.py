@@ -1,6 +1,6 @@
 """results.md, results.json and PNG figures of an experiment folder, from the table cells of its plans
 (:mod:`.results`): Markdown tables with ours beside the paper's published number, labelled "paper" ("n/r" where
-it is not on record), the figures, and the cells as JSON.
+the paper reports none), the figures, and the cells as JSON.
 """
 
 from __future__ import annotations
@@ -123,7 +123,7 @@ def write_report(output_dir: Path, entries: list[dict[str, Any]]) -> dict[str, P
     lines = ["# mosaic-experiment: one-shot success (%)\n",
              "Cells: ours, mean +- std over training seeds and [95% Wilson interval] on the n held-out episodes "
              "that every seed and checkpoint replays, then the paper's published number (paper); "
-             "n/r: the paper's number is not on record in this toolkit. Numbers come only from runs in this folder. "
+             "n/r: the paper reports no number for this cell. Numbers come only from runs in this folder. "
              "The interval is how well the episodes pin the rate down; the +- is the spread between seeds.\n"]
     summary: dict[str, Any] = {"recipes": []}
     for entry in entries:

@@ -7,7 +7,7 @@ held-out instances behind it (:mod:`pipelines.evaluation.intervals`): every seed
 instances, so n is one evaluation's episodes, not their sum; with 10 episodes per variation of a task of 4
 variations (n=40) the interval still reaches 15 points either way. The interval is the episodes' uncertainty,
 the "+-" the seeds' spread. The paper's published number stands beside it (:mod:`.paper_results`), None where
-it is not on record. Cells whose evaluations have not run yet count them in ``missing``: numbers come only from
+the paper reports none. Cells whose evaluations have not run yet count them in ``missing``: numbers come only from
 runs. The report (:mod:`.report`) and the figures (:mod:`.figures`) read these records.
 """
 

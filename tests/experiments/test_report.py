@@ -11,6 +11,7 @@ from pipelines.evaluation.intervals import wilson_interval
 from pipelines.evaluation.report import summarize
 from pipelines.evaluation.rollouts import EpisodeResult
 from pipelines.experiments import cli
+from pipelines.experiments.paper_results import paper_number
 from pipelines.experiments.presets import resolve_preset
 from pipelines.experiments.recipes import build_plan
 from mosaic_data.atomic_files import write_json_atomically
@@ -109,3 +110,17 @@ def test_the_learning_report_has_a_curve_point_per_checkpoint_and_each_variation
     assert "| 4 | 75.0 [30.1, 95.4] (n=4) | 25.0 | 100 | 100 | 100 | 0 |" in markdown
     assert "(paper 67.1)" in markdown  # MOSAIC's single-task door number
     assert (output / "figures" / "learning_door_mosaic.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("row, task, expected", [
+    ("paper", "door", 67.1),  # the reference row is Table I's single-task MOSAIC
+    ("contrastive_off", "door", 62.5),  # appendix, "Single-task w/o Contra."
+    ("positive_same", "pick_place", 12.3),  # appendix, No-Temp
+    ("positive_fixed", "basketball", 52.5),  # appendix, Fix-Temp
+    ("contrastive_before", "nut_assembly", 17.8),  # appendix, Pre-Attn
+    ("contrastive_after", "pick_place", 51.5),  # appendix, Post-Attn
+    ("positive_fixed", "door", None),  # measured on three tasks only
+    ("chunk_10", "door", None),  # this project's own row
+])
+def test_ablation_cells_carry_the_appendix_numbers_and_none_where_the_paper_has_none(row, task, expected):
+    assert paper_number("ablations", row, task) == expected
