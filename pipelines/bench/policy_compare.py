@@ -1,12 +1,15 @@
 """Benchmark: every policy of the paper's Table I against MOSAIC, measured in one run on this machine.
 
     python -m pipelines.bench.policy_compare [--batch-size 30] [--steps 2] [--calls 30] [--output compare.json]
+    python -m pipelines.bench.policy_compare --batch-size 16 --height 48 --width 88 --vision-backbone conv \
+        --action-chunk 10 --threads 2 --steps 5     # the sizes of mosaic-experiment's cpu preset
 
 For each policy type at its default (single-task) size, 100x180 frames: trainable parameters, seconds per
 training step (forward + backward + Adam + the policy's update; batch 30, 4 demo + 7 observation frames) and
 the latency of one policy query with a cached demonstration (`predict_action_chunk`, batch 1; `select_action`
 runs one query every `action_chunk` control steps), each also as a ratio to MOSAIC's. The machine is shared and
-noisy: only ratios from the same run compare.
+noisy: only ratios from the same run compare. The table also says how many training steps an hour buys at the
+measured step time (what a recipe run of each policy costs at those sizes).
 """
 
 from __future__ import annotations
@@ -23,13 +26,13 @@ from mosaic_data.constants import CAMERA_KEY, STATE_DIM, STATE_KEY, policy_featu
 from pipelines.bench.policy_train_step import peak_rss_gib, synthetic_batch
 
 
-def default_config(policy_type: str, height: int, width: int):
+def default_config(policy_type: str, height: int, width: int, **overrides):
     from lerobot.configs import PreTrainedConfig
 
     import mosaic_policy  # noqa: F401  (registers the types)
 
     return PreTrainedConfig.get_choice_class(policy_type)(
-        device="cpu", **policy_features(height, width), push_to_hub=False
+        device="cpu", **policy_features(height, width), push_to_hub=False, **overrides
     )
 
 
@@ -74,7 +77,10 @@ def measure(policy_type: str, args: argparse.Namespace) -> dict:
     from mosaic_policy import policy_class
 
     torch.manual_seed(0)
-    config = default_config(policy_type, args.height, args.width)
+    overrides = {"vision_backbone": args.vision_backbone}
+    if args.action_chunk is not None:
+        overrides["action_chunk"] = args.action_chunk
+    config = default_config(policy_type, args.height, args.width, **overrides)
     policy = policy_class(policy_type)(config)
     row = {"policy": policy_type, "parameters": trainable_parameters(policy)}
     batch = synthetic_batch(config, args.batch_size, args.height, args.width)
@@ -88,17 +94,18 @@ def markdown(rows: list[dict], args: argparse.Namespace) -> str:
 
     reference = next(row for row in rows if row["policy"] == "mosaic")
     lines = [
-        f"| policy | trainable parameters | train step (batch {args.batch_size}, {args.height}x{args.width}) | "
-        "query latency (batch 1) |",
-        "|---|---|---|---|",
+        f"| policy | trainable parameters | train step (batch {args.batch_size}, {args.height}x{args.width}, "
+        f"{args.vision_backbone}) | steps per hour | query latency (batch 1) |",
+        "|---|---|---|---|---|",
     ]
     for row in rows:
         step = row["train_step_s"]
         step_cell = f"{step:.2f} s ({step / reference['train_step_s']:.2f}x)" if step else "-"
+        hour_cell = f"{3600 / step:.0f}" if step else "-"
         lines.append(
             f"| {POLICY_TYPES[row['policy']]} (`{row['policy']}`) "
             f"| {row['parameters'] / 1e6:.2f} M ({row['parameters'] / reference['parameters']:.2f}x) "
-            f"| {step_cell} | {row['query_ms']:.1f} ms ({row['query_ms'] / reference['query_ms']:.2f}x) |"
+            f"| {step_cell} | {hour_cell} | {row['query_ms']:.1f} ms ({row['query_ms'] / reference['query_ms']:.2f}x) |"
         )
     return "\n".join(lines)
 
@@ -113,9 +120,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--calls", type=int, default=30, help="timed queries after five warm-up queries")
     parser.add_argument("--height", type=int, default=100)
     parser.add_argument("--width", type=int, default=180)
+    parser.add_argument("--vision-backbone", choices=["resnet18", "conv"], default="resnet18",
+                        help="every policy's trunk (conv: the cpu preset's)")
+    parser.add_argument("--action-chunk", type=int, default=None, help="every policy's action chunk (default: its own)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     parser.add_argument("--skip-train", action="store_true", help="parameters and query latency only")
     parser.add_argument("--output", type=Path, default=None, help="also write the figures as JSON here")
     args = parser.parse_args(argv)
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
     policies = ["mosaic"] + [p for p in args.policies if p != "mosaic"]  # the reference first
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, cpu")
     rows = []

@@ -42,6 +42,17 @@ The training part of the estimate on ``--policy.device=cpu``, scaled by
 batch size and pixels per image."""
 CPU_REFERENCE_SIZES = (16, 48, 88)
 """Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""
+MEASURED_CPU_STEP_RATIO = {
+    "conv": {"mosaic": 1.0, "tosil": 0.73, "lstm_osil": 0.43, "mlp_osil": 0.46, "daml": 0.94},
+    "resnet18": {"mosaic": 1.0, "tosil": 0.64, "lstm_osil": 0.55, "mlp_osil": 0.56, "daml": 0.48},
+}
+"""Trunk -> policy type -> its lerobot-train step as a ratio to MOSAIC's, from ``python -m
+pipelines.bench.policy_compare`` on this project's 2-core machine. conv, at the ``cpu`` preset's sizes
+(``--batch-size 16 --height 48 --width 88 --vision-backbone conv --action-chunk 10 --threads 2 --steps 5``): the
+model steps (MOSAIC 0.58 s, T-OSIL 0.39, LSTM 0.18, MLP 0.20, DAML 0.54) plus the 0.12 s of data loading that a
+MOSAIC run adds (0.70 s per step in lerobot-train), e.g. LSTM (0.18 + 0.12) / 0.70; an LSTM run logged 0.28 s per
+step. resnet18, at the paper's sizes (batch 30, 100x180; README): the model steps' ratios alone. MOSAIC's step also
+runs its EMA target and contrastive losses, the baselines have none. It scales the training estimate of a baseline's run."""
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -74,6 +85,15 @@ def _duration(seconds: float, unit: str = "hours") -> str:
     return f"{seconds / 3600:.1f} {unit}"
 
 
+def _train_steps(stage: Stage) -> int:
+    return int(next(a for a in stage.command if a.startswith("--steps=")).split("=")[1])
+
+
+def _policy_type(stage: Stage) -> str | None:
+    """The --policy.type of a training stage; None for a fine-tuned model (its type is in its checkpoint)."""
+    return next((a.split("=", 1)[1] for a in stage.command if a.startswith("--policy.type=")), None)
+
+
 def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None = None) -> str:
     """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours; with ``output_dir``,
     only the stages not finished there (an extended or resumed experiment)."""
@@ -82,7 +102,7 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
     stages = [s for s in plan.stages if output_dir is None or not is_done(output_dir, s)]
     finished = len(plan.stages) - len(stages)
     train = [s for s in stages if s.kind == "train"]
-    steps = sum(int(next(a for a in s.command if a.startswith("--steps=")).split("=")[1]) for s in train)
+    steps = sum(_train_steps(s) for s in train)
     evaluations = [s for s in stages if s.kind == "evaluate"]
     rollout_steps = 0
     for stage in evaluations:
@@ -105,9 +125,14 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         batch, ref_height, ref_width = CPU_REFERENCE_SIZES
         measured = MEASURED_CPU_SECONDS_PER_STEP[preset.vision_backbone]
         per_step = measured * preset.batch_size * height * width / (batch * ref_height * ref_width)
-        text += (f"; training about {_duration(steps * per_step)} on 2 CPU cores ({per_step:.2g} s per step, scaled "
-                 f"from {measured} s measured for MOSAIC with the {preset.vision_backbone} trunk at "
-                 f"{ref_height}x{ref_width}, batch {batch})")
+        ratios = MEASURED_CPU_STEP_RATIO[preset.vision_backbone]
+        seconds = sum(_train_steps(s) * per_step * ratios.get(_policy_type(s), 1.0) for s in train)
+        baselines = [b for b in ratios if b != "mosaic" and b in {_policy_type(s) for s in train}]
+        text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per MOSAIC step, scaled "
+                 f"from {measured} s measured with the {preset.vision_backbone} trunk at "
+                 f"{ref_height}x{ref_width}, batch {batch}"
+                 + (f"; a baseline's step: {', '.join(f'{b} {ratios[b]}x' for b in baselines)} of it" if baselines else "")
+                + ")")
     if preset.device == "cuda":
         text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
                  f"{ASSUMED_GPU_SECONDS_PER_STEP} s per step (not measured here)")

@@ -102,13 +102,20 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
-    # 5 methods x 5000 steps at the 0.7 s per step of the conv trunk at the cpu preset's own sizes: 4.9 hours
+    # 5 methods x 5000 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, each
+    # baseline's step scaled by its measured ratio (0.73 + 0.43 + 0.46 + 0.94): 5000 x 0.7 x 3.56 s = 3.5 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
-    assert "training about 4.9 hours on 2 CPU cores (0.7 s per step" in capsys.readouterr().out
-    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, 17.4 hours
+    out = capsys.readouterr().out
+    assert "training about 3.5 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
+    assert "a baseline's step: tosil 0.73x, lstm_osil 0.43x, mlp_osil 0.46x, daml 0.94x of it)" in out
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 0.64 + 0.55 + 0.56 + 0.48: 11.2 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 17.4 hours on 2 CPU cores (2.5 s per step" in capsys.readouterr().out
+    assert "training about 11.2 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
+    # one baseline alone: LSTM at 0.43x, 5000 x 0.7 x 0.43 s = 25 minutes
+    cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "lstm"), "--dry-run",
+              "--set", "learning_methods=lstm_osil"])
+    assert "training about 25 minutes on 2 CPU cores" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(

@@ -329,10 +329,13 @@ def test_the_comparison_benchmark_prints_every_policy_as_a_ratio_to_mosaic(tmp_p
     from pipelines.bench.policy_compare import main
 
     output = tmp_path / "compare.json"
-    main(["--height", "32", "--width", "56", "--batch-size", "2", "--steps", "1", "--calls", "2", "--output", str(output)])
+    main(["--height", "32", "--width", "56", "--batch-size", "2", "--steps", "1", "--calls", "2", "--output", str(output),
+          "--vision-backbone", "conv", "--action-chunk", "10"])
     table = capsys.readouterr().out
-    assert "| MOSAIC (`mosaic`) | " in table and "(1.00x)" in table
-    rows = json.loads(output.read_text())["rows"]
+    assert "| MOSAIC (`mosaic`) | " in table and "(1.00x)" in table and "conv) | steps per hour |" in table
+    recorded = json.loads(output.read_text())
+    assert (recorded["settings"]["vision_backbone"], recorded["settings"]["action_chunk"]) == ("conv", 10)
+    rows = recorded["rows"]
     assert [row["policy"] for row in rows] == POLICY_TYPES
     assert all(row["parameters"] > 0 and row["train_step_s"] > 0 and row["query_ms"] > 0 for row in rows)
 
