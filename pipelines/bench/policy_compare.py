@@ -1,7 +1,7 @@
 """Benchmark: every policy of the paper's Table I against MOSAIC, measured in one run on this machine.
 
     python -m pipelines.bench.policy_compare [--batch-size 30] [--steps 2] [--calls 30] [--output compare.json]
-    python -m pipelines.bench.policy_compare --batch-size 16 --height 48 --width 88 --vision-backbone conv \
+    python -m pipelines.bench.policy_compare --batch-size 16 --height 48 --width 88 --vision-backbone conv \\
         --action-chunk 10 --threads 2 --steps 5     # the sizes of mosaic-experiment's cpu preset
 
 For each policy type at its default (single-task) size, 100x180 frames: trainable parameters, seconds per
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from mosaic_data.constants import CAMERA_KEY, STATE_DIM, STATE_KEY, policy_features
+from mosaic_data.constants import CAMERA_KEY, STATE_DIM, STATE_KEY, VISION_BACKBONES, policy_features
 from pipelines.bench.policy_train_step import peak_rss_gib, synthetic_batch
 
 
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--calls", type=int, default=30, help="timed queries after five warm-up queries")
     parser.add_argument("--height", type=int, default=100)
     parser.add_argument("--width", type=int, default=180)
-    parser.add_argument("--vision-backbone", choices=["resnet18", "conv"], default="resnet18",
+    parser.add_argument("--vision-backbone", choices=VISION_BACKBONES, default="resnet18",
                         help="every policy's trunk (conv: the cpu preset's)")
     parser.add_argument("--action-chunk", type=int, default=None, help="every policy's action chunk (default: its own)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")

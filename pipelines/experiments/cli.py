@@ -126,8 +126,9 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         measured = MEASURED_CPU_SECONDS_PER_STEP[preset.vision_backbone]
         per_step = measured * preset.batch_size * height * width / (batch * ref_height * ref_width)
         ratios = MEASURED_CPU_STEP_RATIO[preset.vision_backbone]
-        seconds = sum(_train_steps(s) * per_step * ratios.get(_policy_type(s), 1.0) for s in train)
-        baselines = [b for b in ratios if b != "mosaic" and b in {_policy_type(s) for s in train}]
+        types = [_policy_type(s) for s in train]
+        seconds = sum(_train_steps(s) * per_step * ratios.get(t, 1.0) for s, t in zip(train, types))
+        baselines = [b for b in ratios if b != "mosaic" and b in types]
         text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per MOSAIC step, scaled "
                  f"from {measured} s measured with the {preset.vision_backbone} trunk at "
                  f"{ref_height}x{ref_width}, batch {batch}"

@@ -72,10 +72,10 @@ def paper_number(table: str, row: str, task: str, fraction: int | None = None, m
         if table == "fine-tune" and mode == "scratch":
             return TABLE_I[("single-task", "mosaic")].get(task)
         return TABLE_II[table].get(task)
-    if table == "ablations":
-        if row == "paper":
-            return TABLE_I[("single-task", "mosaic")].get(task)
+    if table == "ablations" and row != "paper":
         return SINGLE_TASK_ABLATIONS.get(row, {}).get(task)
+    if table == "ablations":  # the reference row: Table I's single-task MOSAIC
+        table, row = "single-task", "mosaic"
     if table == "learning":  # one method trained on one task: the single-task setup of Table I
         table = "single-task"
     return TABLE_I.get((table, row), {}).get(task)
