@@ -18,17 +18,9 @@ from torch import Tensor, nn
 
 from ..common.demo_conditioned_model import DemoConditionedModel
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, expand_to_batch
+from ..common.demo_summary import context_mlp, fuse_with_context, fusion_layer
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from .configuration_mlp_osil import MlpOsilConfig
-
-
-def context_mlp(in_dim: int, n_layers: int, hidden_dim: int, out_dim: int) -> nn.Sequential:
-    """`n_layers` hidden Linear + ReLU layers of `hidden_dim`, then a linear to `out_dim` (no activation)."""
-    layers: list[nn.Module] = []
-    for i in range(n_layers):
-        layers += [nn.Linear(in_dim if i == 0 else hidden_dim, hidden_dim), nn.ReLU()]
-    layers.append(nn.Linear(hidden_dim, out_dim))
-    return nn.Sequential(*layers)
 
 
 class MlpOsilModel(DemoConditionedModel):
@@ -39,7 +31,7 @@ class MlpOsilModel(DemoConditionedModel):
         config = self.config
         demo_dim = config.n_demo_frames * config.embed_dim
         self.context = context_mlp(demo_dim, config.n_context_layers, config.context_hidden_dim, config.context_dim)
-        self.fuse = nn.Sequential(nn.Linear(config.embed_dim + config.context_dim, config.embed_dim), nn.ReLU())
+        self.fuse = fusion_layer(config.embed_dim, config.context_dim)
 
     def task_context(self, demo_vectors: Tensor) -> Tensor:
         """(B, D, embed_dim) demonstration vectors -> (B, context_dim); the order of the frames matters."""
@@ -47,8 +39,7 @@ class MlpOsilModel(DemoConditionedModel):
 
     def fuse_context(self, obs_vectors: Tensor, context: Tensor) -> Tensor:
         """(B, T, embed_dim) observation vectors and (B, context_dim) context -> (B, T, embed_dim) embeddings."""
-        context = context[:, None].expand(-1, obs_vectors.shape[1], -1)
-        return self.fuse(torch.cat([obs_vectors, context], dim=-1))
+        return fuse_with_context(self.fuse, obs_vectors, context)
 
     def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
         """Demo (B, D, 3, H, W) and observation (B, T, 3, H, W) frames -> (B, T, embed_dim): each observation

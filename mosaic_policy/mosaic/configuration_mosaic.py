@@ -21,7 +21,8 @@ class MosaicConfig(DemoConditionedConfig):
     demonstrator dataset paired with `--dataset.repo_id`), `n_attention_layers` (2 single-task, 3 multi-task)
     and `contrastive` (ablations). The contrastive positive lies within +-`positive_window` observation frames
     (0.5 s at the default time scale). `attention_pattern="full"` is T-OSIL's causal pattern inside MOSAIC (the
-    attention ablation), acting with a memory of past frames. The EMA target's momentum reaches 1 over the run's
+    attention ablation), acting with a memory of past frames. `demo_summary` adds the MLP baseline's ordered
+    demonstration vector beside the attention (not in the paper). The EMA target's momentum reaches 1 over the run's
     `--steps` unless `ema_total_steps` says otherwise (fine-tuning a checkpoint starts a new schedule, `--resume`
     continues it).
     """
@@ -36,6 +37,13 @@ class MosaicConfig(DemoConditionedConfig):
     attention_pattern: str = "mosaic"
     # Dropout on attention outputs.
     attention_dropout: float = 0.1
+    # This project: also join each observation frame's embedding with an ordered summary of the demonstration (its
+    # attended frames' vectors concatenated in time order, then an MLP: the MLP baseline's task context).
+    demo_summary: bool = False
+    # Width of the summary MLP's two hidden layers.
+    summary_hidden_dim: int = 512
+    # Size of the summary vector.
+    summary_dim: int = 256
 
     # Weight of the contrastive loss(es) (paper: 1).
     contrastive_loss_weight: float = 1.0
@@ -74,7 +82,7 @@ class MosaicConfig(DemoConditionedConfig):
                     f"`{name}` must be one of {allowed}, got {getattr(self, name)!r}: "
                     f"pass e.g. --policy.{name}={allowed[0]}."
                 )
-        for name in ("n_attention_layers", "n_attention_heads"):
+        for name in ("n_attention_layers", "n_attention_heads", "summary_hidden_dim", "summary_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
         if self.attention_temperature <= 0:

@@ -2,14 +2,15 @@
 
 Per frame: ResNet-18 trunk (to layer3; `vision_backbone`) -> + sinusoidal spatio-temporal encoding -> non-local
 attention (demo frames self-attend; every observation frame attends to its own tokens and the demo tokens) ->
-per-frame embedding -> discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head
+per-frame embedding (with `demo_summary`, joined with an ordered summary vector of the attended demo frames) ->
+discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head
 predicts the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA
 target encoder shapes the representation before and/or after attention.
 
 The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
 (the same in every row of the table); this module builds the attention and the contrastive modules.
 Training and inference follow :mod:`mosaic_policy.common.demo_conditioned_policy` (the interface every
-demo-conditioned policy shares). Acting, the demo tokens and every layer's demo keys/values are computed once
+demo-conditioned policy shares). Acting, every layer's demo keys/values (and the summary) are computed once
 per episode by `set_demo` and cached; `predict_with_attention` also returns the attention weights.
 """
 
@@ -21,6 +22,7 @@ from torch import Tensor, nn
 from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
 from ..common.demo_conditioned_model import DemoConditionedModel
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, expand_to_batch, masked_mean
+from ..common.demo_summary import context_mlp, fuse_with_context, fusion_layer
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameMemory, trunk_features
 from ..common.run_progress import run_progress
@@ -32,8 +34,8 @@ DEFAULT_EMA_STEPS = 100_000
 
 
 class MosaicModel(DemoConditionedModel):
-    """The online network: the shared trunk, embedding and heads, attention as the task context, and the
-    contrastive modules (no EMA target here)."""
+    """The online network: the shared trunk, embedding and heads, attention (and with `demo_summary` the ordered
+    demo summary) as the task context, and the contrastive modules (no EMA target here)."""
 
     def __init__(self, config: MosaicConfig, image_hw: tuple[int, int], state_dim: int, action_dim: int):
         super().__init__(config, image_hw, state_dim, action_dim)
@@ -58,6 +60,26 @@ class MosaicModel(DemoConditionedModel):
     def build_context(self, channels: int, height: int, width: int) -> None:
         config = self.config
         self.attention = NonLocalAttentionStack.from_config(config, channels, config.attention_pattern)
+        self.summary, self.summary_fuse = None, None
+        if config.demo_summary:
+            demo_dim = config.n_demo_frames * config.embed_dim
+            self.summary = context_mlp(demo_dim, 2, config.summary_hidden_dim, config.summary_dim)
+            self.summary_fuse = fusion_layer(config.embed_dim, config.summary_dim)
+
+    def summarize_demo(self, demo_post: Tensor) -> Tensor | None:
+        """(B, C, D, h, w) attended demo features -> (B, summary_dim) ordered summary; None without `demo_summary`."""
+        if self.summary is None:
+            return None
+        return self.summary(self.frame_embeddings(demo_post).flatten(1))
+
+    def conditioned_embeddings(self, obs_post: Tensor, summary: Tensor | None) -> Tensor:
+        """(B, C, T, h, w) attended observation features and the demo summary (or None) -> (B, T, embed_dim)."""
+        embeddings = self.frame_embeddings(obs_post)
+        return embeddings if summary is None else fuse_with_context(self.summary_fuse, embeddings, summary)
+
+    def embeddings_of(self, encoded: dict[str, Any]) -> Tensor:
+        """What the heads read, from the output of :meth:`encode`."""
+        return self.conditioned_embeddings(encoded["obs_post"], self.summarize_demo(encoded["demo_post"]))
 
     def obs_position_for(self, n_frames: int) -> Tensor:
         if self.config.attention_pattern == "full":  # frames that see each other are told apart by time
@@ -79,7 +101,7 @@ class MosaicModel(DemoConditionedModel):
         return {"demo_pre": demo_f, "obs_pre": obs_f, "demo_post": demo_out, "obs_post": obs_out, "weights": weights}
 
     def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
-        return self.frame_embeddings(self.encode(trunk, self.attention, demo, obs)["obs_post"])
+        return self.embeddings_of(self.encode(trunk, self.attention, demo, obs))
 
 
 def _pooled(features: Tensor) -> Tensor:
@@ -111,11 +133,13 @@ class MosaicPolicy(DemoConditionedPolicy):
 
     # -- inference ------------------------------------------------------------------------------------------
 
-    def encode_demo(self, demo: Tensor) -> list[tuple[Tensor, Tensor]]:
-        """Every attention layer's demo keys/values (the demo stream depends on the demo only)."""
+    def encode_demo(self, demo: Tensor) -> dict[str, Any]:
+        """Every attention layer's demo keys/values ("cache") and, with `demo_summary`, the summary vector
+        ("summary"): the demo stream depends on the demo only."""
         features = trunk_features(self.trunk_for_inference(), demo) + self.model.demo_position
-        _, cache = self.model.attention.encode_demo(features)
-        return cache
+        demo_out, cache = self.model.attention.encode_demo(features)
+        summary = self.model.summarize_demo(demo_out)
+        return {"cache": cache} if summary is None else {"cache": cache, "summary": summary}
 
     @torch.no_grad()
     def predict_with_attention(self, batch: dict[str, Tensor]) -> tuple[Tensor, list[Tensor]]:
@@ -138,9 +162,12 @@ class MosaicPolicy(DemoConditionedPolicy):
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Any) -> DiscretizedLogisticMixture:
         return self._distribution(image, state, context, return_weights=False)
 
-    def _distribution(self, image: Tensor, state: Tensor | None, cache, return_weights: bool) -> DiscretizedLogisticMixture:
+    def _distribution(
+        self, image: Tensor, state: Tensor | None, context: dict[str, Any], return_weights: bool
+    ) -> DiscretizedLogisticMixture:
         features = trunk_features(self.trunk_for_inference(), image.unsqueeze(1))
-        cache = expand_to_batch(cache, features.shape[0])
+        context = expand_to_batch(context, features.shape[0])
+        cache = context["cache"]
         if self.config.attention_pattern == "full":  # recompute over the remembered frames, keep the current one
             window = self._memory.push(features[:, :, 0])
             obs = window + self.model.obs_position_for(window.shape[2])
@@ -148,7 +175,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         else:
             obs = features + self.model.obs_position
             obs_out, self._last_weights = self.model.attention.attend_obs(obs, cache, return_weights)
-        embeddings = self.model.frame_embeddings(obs_out)[:, 0]
+        embeddings = self.model.conditioned_embeddings(obs_out, context.get("summary"))[:, 0]
         return self.model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
@@ -157,7 +184,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         cfg = self.config
         view1_demo, view1_obs = self.views(sample)
         online = self.model.encode(self.model.trunk, self.model.attention, view1_demo, view1_obs)
-        per_sample, info = self.imitation_losses(self.model.frame_embeddings(online["obs_post"]), sample)
+        per_sample, info = self.imitation_losses(self.model.embeddings_of(online), sample)
         if cfg.contrastive != "off" and self.training:
             contrastive = self._contrastive_loss(online, sample.demo, sample.obs, sample.valid)
             per_sample = per_sample + cfg.contrastive_loss_weight * contrastive

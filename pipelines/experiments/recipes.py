@@ -59,6 +59,7 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
         "this project: robot state input", ("--policy.use_state=true", "--policy.state_components=[gripper_opening]"),
     ),
     "frame_stride_1": ("this project: time scale", ("--policy.frame_stride=1",)),
+    "demo_summary": ("this project: ordered demonstration summary", ("--policy.demo_summary=true",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
 positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride)."""

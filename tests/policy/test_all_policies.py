@@ -353,11 +353,12 @@ LOSSES = {
 EMBEDDING_KINDS = [
     ("mosaic", {}),
     ("mosaic", {"attention_pattern": "full"}),
+    ("mosaic", {"demo_summary": True, "summary_hidden_dim": 32, "summary_dim": 16}),
     ("tosil", {}),
     ("lstm_osil", {"lstm_dropout": 0.5}),  # dropout must be off when acting
     ("mlp_osil", {}),
 ]
-"""Types (and MOSAIC's full-attention ablation) whose heads read `model.observation_embeddings`; DAML's come from
+"""Types (and MOSAIC's full-attention and demo-summary variants) whose heads read `model.observation_embeddings`; DAML's come from
 weights adapted per demonstration (tests/policy/test_daml.py)."""
 
 

@@ -32,7 +32,13 @@ def test_paper_defaults():
 
 @pytest.mark.parametrize(
     "field, value",
-    [("contrastive", "sometimes"), ("contrastive_positive", "nearby"), ("n_demo_frames", 1), ("vision_backbone", "resnet50")],
+    [
+        ("contrastive", "sometimes"),
+        ("contrastive_positive", "nearby"),
+        ("n_demo_frames", 1),
+        ("vision_backbone", "resnet50"),
+        ("summary_dim", 0),
+    ],
 )
 def test_config_rejects_bad_values_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
@@ -140,6 +146,7 @@ def test_wrong_image_size_is_a_clear_error(policy):
         {"contrastive": "after", "contrastive_positive": "fixed", "positive_window": 1},
         {"contrastive_positive": "same", "n_attention_layers": 1, "n_demo_frames": 3},
         {"attention_pattern": "full", "use_state": False},
+        {"demo_summary": True, "summary_hidden_dim": 32, "summary_dim": 16},
     ],
 )
 def test_ablations_train(overrides):
@@ -150,6 +157,25 @@ def test_ablations_train(overrides):
     policy.update()
     assert torch.isfinite(loss)
     assert ("contrastive_loss" in info) == (overrides.get("contrastive", "both") != "off")
+
+
+def test_the_demo_summary_is_off_by_default_and_reads_the_demo_frames_in_order():
+    """Off (the paper's model): no summary weights, so checkpoints and initialisation stay the paper's. On: a
+    cached vector per demonstration that changes when the demo frames are reversed, and gradients reach it."""
+    assert not any("summary" in name for name in MosaicPolicy(small_config()).state_dict())
+    torch.manual_seed(0)
+    policy = MosaicPolicy(small_config(demo_summary=True, summary_hidden_dim=32, summary_dim=16)).eval()
+    demo = torch.rand(1, policy.config.n_demo_frames, 3, HEIGHT, WIDTH)
+    with torch.no_grad():
+        forward, backward = (policy.encode_demo(frames)["summary"] for frames in (demo, demo.flip(1)))
+    assert forward.shape == (1, 16)
+    assert (forward - backward).abs().max() > 1e-4
+    policy.train()
+    loss, _ = policy.forward(random_batch(policy.config, batch_size=2))
+    loss.backward()
+    for name, parameter in policy.model.named_parameters():
+        if name.startswith("summary"):
+            assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
 
 
 def test_loss_is_averaged_per_variation_then_per_task():
