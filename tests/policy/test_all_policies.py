@@ -358,8 +358,8 @@ EMBEDDING_KINDS = [
     ("lstm_osil", {"lstm_dropout": 0.5}),  # dropout must be off when acting
     ("mlp_osil", {}),
 ]
-"""Types (and MOSAIC's full-attention and demo-summary variants) whose heads read `model.observation_embeddings`; DAML's come from
-weights adapted per demonstration (tests/policy/test_daml.py)."""
+"""Types (and MOSAIC's full-attention and demo-summary variants) whose heads read `model.observation_embeddings`;
+DAML's come from weights adapted per demonstration (tests/policy/test_daml.py)."""
 
 
 def _policy(policy_type: str, **overrides):

@@ -173,9 +173,10 @@ def test_the_demo_summary_is_off_by_default_and_reads_the_demo_frames_in_order()
     policy.train()
     loss, _ = policy.forward(random_batch(policy.config, batch_size=2))
     loss.backward()
-    for name, parameter in policy.model.named_parameters():
-        if name.startswith("summary"):
-            assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
+    summary_parameters = [(n, p) for n, p in policy.model.named_parameters() if n.startswith("summary")]
+    assert summary_parameters
+    for name, parameter in summary_parameters:
+        assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
 
 
 def test_loss_is_averaged_per_variation_then_per_task():
