@@ -40,6 +40,9 @@ preset's sizes), per ``--policy.vision_backbone``: lerobot-train's ``updt_s`` (c
 stretches of a 5000-step run with batched augmentation; resnet18: a 500-step run with the per-sequence augmentation).
 The training part of the estimate on ``--policy.device=cpu``, scaled by
 batch size and pixels per image."""
+DEMO_SUMMARY_STEP_RATIO = 1.09
+"""A MOSAIC step with ``--policy.demo_summary=true`` against one without, on the 2-core machine with the conv trunk
+(0.76 s per step over 4500- and 5000-step door runs alone, against 0.70)."""
 CPU_REFERENCE_SIZES = (16, 48, 88)
 """Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""
 MEASURED_CPU_STEP_RATIO = {
@@ -127,7 +130,9 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         per_step = measured * preset.batch_size * height * width / (batch * ref_height * ref_width)
         ratios = MEASURED_CPU_STEP_RATIO[preset.vision_backbone]
         types = [_policy_type(s) for s in train]
-        seconds = sum(_train_steps(s) * per_step * ratios.get(t, 1.0) for s, t in zip(train, types))
+        seconds = sum(_train_steps(s) * per_step * ratios.get(t, 1.0)
+                      * (DEMO_SUMMARY_STEP_RATIO if "--policy.demo_summary=true" in s.command else 1.0)
+                      for s, t in zip(train, types))
         baselines = [b for b in ratios if b != "mosaic" and b in types]
         text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per MOSAIC step, scaled "
                  f"from {measured} s measured with the {preset.vision_backbone} trunk at "

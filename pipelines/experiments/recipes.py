@@ -159,14 +159,18 @@ class PlanBuilder:
     # training
     def train(self, run: str, data: DataPair, method: str, seed: int, options: tuple[str, ...] = (),
               steps: int | None = None, save_every: int | None = None, init_from: Path | None = None,
-              episodes: list[int] | None = None) -> Path:
-        """A lerobot-train stage; the run folder. ``init_from`` fine-tunes that checkpoint instead of a new model."""
+              episodes: list[int] | None = None, paper_model: bool = False) -> Path:
+        """A lerobot-train stage; the run folder. ``init_from`` fine-tunes that checkpoint instead of a new model.
+
+        A new MOSAIC model gets the preset's ``mosaic_options`` unless ``paper_model`` (the ablations' rows).
+        """
         p = self.preset
         steps, save_every = steps or p.steps, save_every or p.save_every
         train_dir = self.output_dir / "runs" / run / "train"
         # A fine-tuned model keeps its checkpoint's trunk (config.json); a new one gets the preset's.
         source = ((f"--policy.path={init_from}",) if init_from
                   else (f"--policy.type={method}", f"--policy.vision_backbone={p.vision_backbone}"))
+        own = p.mosaic_options if method == "mosaic" and not init_from and not paper_model else ()
         selection = (f"--dataset.episodes=[{','.join(map(str, episodes))}]",) if episodes is not None else ()
         self.plan.add(Stage(
             key=f"train/{run}", kind="train", output=train_dir,
@@ -177,7 +181,7 @@ class PlanBuilder:
                      f"--policy.train_obs_frames={p.train_obs_frames}", "--policy.push_to_hub=false",
                      f"--policy.device={p.device}", f"--batch_size={p.batch_size}", f"--steps={steps}",
                      f"--save_freq={save_every}", "--log_freq=50", f"--num_workers={p.num_workers}",
-                     f"--seed={TRAIN_SEED_BASE + seed}", f"--output_dir={train_dir}", *p.train_options, *options),
+                     f"--seed={TRAIN_SEED_BASE + seed}", f"--output_dir={train_dir}", *p.train_options, *own, *options),
         ))
         return train_dir
 
@@ -342,7 +346,7 @@ def ablations(b: PlanBuilder, tasks: tuple[str, ...]) -> None:
             options = ABLATIONS[variant][1]
             for seed in _seeds(b.preset):
                 run = f"ablations/{task}/{variant}/seed{seed}"
-                train_dir = b.train(run, data, "mosaic", seed, options)
+                train_dir = b.train(run, data, "mosaic", seed, options, paper_model=True)
                 b.evaluate("ablations", variant, run, train_dir, (task,), seed)
 
 

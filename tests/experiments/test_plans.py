@@ -102,20 +102,21 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
-    # 5 methods x 5000 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, each
-    # baseline's step scaled by its measured ratio (0.73 + 0.43 + 0.46 + 0.94): 5000 x 0.7 x 3.56 s = 3.5 hours
+    # 5 methods x 4500 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, MOSAIC's
+    # scaled by 1.09 for its demonstration summary, each baseline's by its measured ratio (0.73 + 0.43 + 0.46 +
+    # 0.94): 4500 x 0.7 x 3.65 s = 3.2 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
     out = capsys.readouterr().out
-    assert "training about 3.5 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
+    assert "training about 3.2 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
     assert "a baseline's step: tosil 0.73x, lstm_osil 0.43x, mlp_osil 0.46x, daml 0.94x of it)" in out
-    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 0.64 + 0.55 + 0.56 + 0.48: 11.2 hours
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, 1.09 + 0.64 + 0.55 + 0.56 + 0.48: 10.4 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 11.2 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
-    # one baseline alone: LSTM at 0.43x, 5000 x 0.7 x 0.43 s = 25 minutes
+    assert "training about 10.4 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
+    # one baseline alone: LSTM at 0.43x, 4500 x 0.7 x 0.43 s = 23 minutes
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "lstm"), "--dry-run",
               "--set", "learning_methods=lstm_osil"])
-    assert "training about 25 minutes on 2 CPU cores" in capsys.readouterr().out
+    assert "training about 23 minutes on 2 CPU cores" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -231,6 +232,22 @@ def test_train_options_go_to_every_run_and_a_variant_overrides_them(tmp_path):
     assert chunk == ["--policy.action_chunk=10", "--policy.action_chunk=1"]  # the variant's comes last and wins
 
 
+def test_mosaic_options_go_to_new_mosaic_models_only(tmp_path):
+    preset = resolve_preset("smoke", ["mosaic_options=--policy.demo_summary=true", "methods=mosaic,mlp_osil",
+                                      "ablation_variants=paper,chunk_10"])
+    single = build_plan("single-task", preset, tmp_path / "single")
+    trained = {s.key: s.command for s in single.stages if s.kind == "train"}
+    assert [key for key, command in trained.items() if "--policy.demo_summary=true" in command] == [
+        key for key in trained if "/mosaic/" in key
+    ] != []
+    ablations = build_plan("ablations", preset, tmp_path / "ablations")
+    assert all("--policy.demo_summary=true" not in s.command for s in ablations.stages)  # the paper's MOSAIC
+    fine_tune = build_plan("fine-tune", preset, tmp_path / "fine")
+    for stage in (s for s in fine_tune.stages if s.kind == "train"):
+        from_checkpoint = any(a.startswith("--policy.path=") for a in stage.command)
+        assert ("--policy.demo_summary=true" in stage.command) is not from_checkpoint  # kept in its config.json
+
+
 def test_action_noise_goes_to_the_collection(tmp_path):
     plan = build_plan("learning", resolve_preset("smoke", ["action_noise=0.005"]), tmp_path / "exp")
     collect = plan.stages[0].command
@@ -244,6 +261,7 @@ def test_action_noise_goes_to_the_collection(tmp_path):
         ("variations=1,1", "give distinct variation numbers"),
         ("ablation_variants=paper,chunk_99", "unknown chunk_99: choose from paper"),
         ("train_options=policy.action_chunk=10", "give lerobot-train options"),
+        ("mosaic_options=policy.demo_summary=true", "preset mosaic_options='policy.demo_summary=true': give"),
         ("action_noise=5", "metres, not millimetres"),
         ("learning_methods=act", "preset learning_methods act: choose from mosaic"),
     ],
