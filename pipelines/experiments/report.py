@@ -105,6 +105,10 @@ def settings_text(preset_name: str, preset: ExperimentPreset, overrides: list[st
     if p.eval_max_steps:
         text += f", episodes capped at {p.eval_max_steps} steps"
     text += "."
+    if p.train_options:
+        text += f" lerobot-train options of every run: `{' '.join(p.train_options)}`."
+    if p.mosaic_options:
+        text += f" Of MOSAIC's runs (not the ablations' rows): `{' '.join(p.mosaic_options)}`."
     if overrides:
         text += " Overrides: " + ", ".join(f"`{o}`" for o in overrides) + "."
     return text

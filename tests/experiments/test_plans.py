@@ -273,3 +273,12 @@ def test_bad_learning_settings_give_one_clear_line(override, message, tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+def test_the_report_names_the_training_options_of_its_preset():
+    from pipelines.experiments.report import settings_text
+
+    text = settings_text("cpu", PRESETS["cpu"], [])
+    assert "lerobot-train options of every run: `--policy.action_chunk=10`." in text
+    assert "Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true`." in text
+    assert "options" not in settings_text("smoke", PRESETS["smoke"], [])
