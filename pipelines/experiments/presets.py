@@ -94,8 +94,15 @@ PRESETS: dict[str, ExperimentPreset] = {
 }
 
 
+OPTION_FIELDS: dict[str, str] = {
+    "train_options": "--policy.action_chunk=10 --policy.attention_pattern=full",
+    "mosaic_options": "--policy.demo_summary=true",
+}
+"""Preset fields that hold lerobot-train options, each with the example its error gives."""
+
+
 def _parse_value(name: str, current: Any, text: str) -> Any:
-    if name in ("train_options", "mosaic_options"):  # command-line options hold commas (--dataset.episodes=[0,1]): split on spaces
+    if name in OPTION_FIELDS:  # command-line options hold commas (--dataset.episodes=[0,1]): split on spaces
         return tuple(text.split())
     if name == "variations":
         return tuple(int(item) for item in text.split(",") if item)
@@ -161,9 +168,7 @@ def check_preset(preset: ExperimentPreset) -> None:
             parse_action_noise(preset.action_noise)
         except ValueError as error:
             raise ExperimentError(f"preset action_noise: {error}") from None
-    examples = {"train_options": "--policy.action_chunk=10 --policy.attention_pattern=full",
-                "mosaic_options": "--policy.demo_summary=true"}
-    for key, example in examples.items():
+    for key, example in OPTION_FIELDS.items():
         if any(not option.startswith("--") for option in getattr(preset, key)):
             raise ExperimentError(
                 f"preset {key}={' '.join(getattr(preset, key))!r}: give lerobot-train options, e.g. "
