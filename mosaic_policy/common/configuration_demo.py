@@ -15,10 +15,11 @@ from lerobot.optim import AdamConfig
 
 from mosaic_data.constants import N_DEMO_FRAMES, STATE_NAMES, VISION_BACKBONES
 
-from .run_progress import RunProgressSchedulerConfig
+from .run_progress import LR_SCHEDULES, RunProgressSchedulerConfig
 
 ACTION_SAMPLING = ("mode", "sample")
 VisionBackbone = Literal[VISION_BACKBONES]  # a Literal: draccus refuses another value naming the choices
+LrSchedule = Literal[LR_SCHEDULES]
 """Trunks `vision_backbone` can name (mosaic_policy.common.trunks.make_trunk builds them)."""
 
 
@@ -118,6 +119,10 @@ class DemoConditionedConfig(PreTrainedConfig):
     optimizer_lr: float = 5e-4
     # Adam weight decay.
     optimizer_weight_decay: float = 0.0
+    # Learning rate over the run: "constant" (the paper) or "cosine" (down to lr_final_ratio of it at the last step).
+    lr_schedule: LrSchedule = "constant"
+    # With lr_schedule=cosine: the learning rate at the run's last step, as a fraction of optimizer_lr.
+    lr_final_ratio: float = 0.1
 
     def __post_init__(self):
         super().__post_init__()
@@ -146,6 +151,12 @@ class DemoConditionedConfig(PreTrainedConfig):
         for name in ("train_obs_frames", "eval_obs_frames", "frame_stride", "action_chunk", "n_mixtures", "embed_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(
+                f"`lr_schedule` must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}: pass e.g. --policy.lr_schedule=cosine."
+            )
+        if not 0.0 <= self.lr_final_ratio <= 1.0:
+            raise ValueError(f"`lr_final_ratio` must be in [0, 1], got {self.lr_final_ratio}.")
         if self.action_bins < 2:
             raise ValueError(f"`action_bins` must be >= 2, got {self.action_bins}.")
         if self.demo_loader_threads < 0:
@@ -167,9 +178,9 @@ class DemoConditionedConfig(PreTrainedConfig):
         return AdamConfig(lr=self.optimizer_lr, weight_decay=self.optimizer_weight_decay)
 
     def get_scheduler_preset(self) -> RunProgressSchedulerConfig:
-        """A constant learning rate through a scheduler that knows the run's length (lerobot-train tells a
-        scheduler `--steps`): schedules inside the policy (MOSAIC's EMA momentum) end with the run."""
-        return RunProgressSchedulerConfig()
+        """The learning-rate schedule (``lr_schedule``) through a scheduler that knows the run's length (lerobot-train
+        tells a scheduler `--steps`): schedules inside the policy (MOSAIC's EMA momentum) end with the run."""
+        return RunProgressSchedulerConfig(schedule=self.lr_schedule, final_lr_ratio=self.lr_final_ratio)
 
     @property
     def camera_key(self) -> str:

@@ -60,9 +60,10 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     ),
     "frame_stride_1": ("this project: time scale", ("--policy.frame_stride=1",)),
     "demo_summary": ("this project: ordered demonstration summary", ("--policy.demo_summary=true",)),
+    "lr_cosine": ("this project: learning-rate schedule", ("--policy.lr_schedule=cosine",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
-positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride)."""
+positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride, constant learning rate)."""
 
 
 @dataclass(frozen=True)

@@ -55,3 +55,16 @@ def test_a_conv_width_that_cannot_be_built_is_refused_naming_the_fix(args, messa
 def test_the_conv_width_reaches_the_config():
     config = draccus.parse(config_class=MosaicConfig, args=["--vision_backbone=conv", "--conv_channels=128"])
     assert (config.vision_backbone, config.conv_channels) == ("conv", 128)
+
+
+def test_a_bad_learning_rate_schedule_on_the_command_line_is_one_line_naming_the_choices(capsys):
+    with pytest.raises(SystemExit):
+        draccus.parse(config_class=MosaicConfig, args=["--lr_schedule=linear"])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--lr_schedule: invalid choice: 'linear' (choose from 'constant', 'cosine')" in error
+
+
+def test_the_learning_rate_schedule_reaches_the_scheduler_preset():
+    config = draccus.parse(config_class=MosaicConfig, args=["--lr_schedule=cosine", "--lr_final_ratio=0.2"])
+    preset = config.get_scheduler_preset()
+    assert (preset.schedule, preset.final_lr_ratio) == ("cosine", 0.2)

@@ -153,3 +153,35 @@ def test_the_ema_schedule_follows_the_run_lerobot_train_reports_fine_tuning_rest
     assert policy.ema_schedule() == (999, 3000)
     assert config.ema_momentum < ema_momentum(*policy.ema_schedule(), config.ema_momentum) < 1.0
     del fine_tuning, resumed, first_run
+
+
+def test_the_cosine_schedule_ends_at_its_final_ratio_on_the_runs_last_step_and_resume_keeps_the_new_length():
+    """`--policy.lr_schedule=cosine`: the rate falls from `optimizer_lr` to `lr_final_ratio` of it at the run's
+    `--steps` (half-way: the mean of the two), and stays there; `--resume` to more steps stretches the rest of the
+    decay to the new end."""
+    from tests.helpers.policy import small_config
+
+    config = small_config()
+    config.lr_schedule, config.lr_final_ratio = "cosine", 0.1
+    parameter = torch.nn.Parameter(torch.zeros(1))
+    optimizer = torch.optim.Adam([parameter], lr=config.optimizer_lr)
+    scheduler = config.get_scheduler_preset().build(optimizer, 100)
+    rates = [optimizer.param_groups[0]["lr"]]
+    for _ in range(120):
+        optimizer.step()
+        scheduler.step()
+        rates.append(optimizer.param_groups[0]["lr"])
+    assert rates[0] == pytest.approx(config.optimizer_lr)
+    assert rates[50] == pytest.approx(0.55 * config.optimizer_lr)
+    assert rates[100] == rates[120] == pytest.approx(0.1 * config.optimizer_lr)
+    assert all(later <= earlier for earlier, later in zip(rates, rates[1:]))
+
+    resumed_optimizer = torch.optim.Adam([parameter], lr=config.optimizer_lr)
+    resumed = config.get_scheduler_preset().build(resumed_optimizer, 200)
+    halfway_optimizer = torch.optim.Adam([parameter], lr=config.optimizer_lr)
+    halfway = config.get_scheduler_preset().build(halfway_optimizer, 100)
+    for _ in range(50):
+        halfway_optimizer.step()
+        halfway.step()
+    resumed.load_state_dict(halfway.state_dict())
+    assert resumed.total_steps == 200 and resumed.lr_factor(100) == pytest.approx(0.55)
