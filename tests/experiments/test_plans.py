@@ -102,21 +102,24 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
-    # 5 methods x 4500 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, MOSAIC's
-    # scaled by 1.09 for its demonstration summary, each baseline's by its measured ratio (0.73 + 0.43 + 0.46 +
-    # 0.94): 4500 x 0.7 x 3.65 s = 3.2 hours
+    # 5 methods x 5000 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, each
+    # baseline's step scaled by its measured ratio (0.73 + 0.43 + 0.46 + 0.94): 5000 x 0.7 x 3.56 s = 3.5 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
     out = capsys.readouterr().out
-    assert "training about 3.2 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
+    assert "training about 3.5 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
     assert "a baseline's step: tosil 0.73x, lstm_osil 0.43x, mlp_osil 0.46x, daml 0.94x of it)" in out
-    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, 1.09 + 0.64 + 0.55 + 0.56 + 0.48: 10.4 hours
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 0.64 + 0.55 + 0.56 + 0.48: 11.2 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 10.4 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
-    # one baseline alone: LSTM at 0.43x, 4500 x 0.7 x 0.43 s = 23 minutes
+    assert "training about 11.2 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
+    # one baseline alone: LSTM at 0.43x, 5000 x 0.7 x 0.43 s = 25 minutes
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "lstm"), "--dry-run",
               "--set", "learning_methods=lstm_osil"])
-    assert "training about 23 minutes on 2 CPU cores" in capsys.readouterr().out
+    assert "training about 25 minutes on 2 CPU cores" in capsys.readouterr().out
+    # MOSAIC with the demonstration summary: its step scaled by 1.09, 5000 x 0.7 x 1.09 s = 64 minutes, "1.1 hours"
+    cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "summary"), "--dry-run",
+              "--set", "mosaic_options=--policy.demo_summary=true"])
+    assert "training about 1.1 hours on 2 CPU cores" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -280,5 +283,9 @@ def test_the_report_names_the_training_options_of_its_preset():
 
     text = settings_text("cpu", PRESETS["cpu"], [])
     assert "lerobot-train options of every run: `--policy.action_chunk=10`." in text
-    assert "Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true`." in text
+    assert "Of MOSAIC's runs" not in text
+    with_summary = resolve_preset("cpu", ["mosaic_options=--policy.demo_summary=true"])
+    assert "Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true`." in settings_text(
+        "cpu", with_summary, []
+    )
     assert "options" not in settings_text("smoke", PRESETS["smoke"], [])
