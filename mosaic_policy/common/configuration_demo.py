@@ -19,8 +19,9 @@ from .run_progress import LR_SCHEDULES, RunProgressSchedulerConfig
 
 ACTION_SAMPLING = ("mode", "sample")
 VisionBackbone = Literal[VISION_BACKBONES]  # a Literal: draccus refuses another value naming the choices
-LrSchedule = Literal[LR_SCHEDULES]
 """Trunks `vision_backbone` can name (mosaic_policy.common.trunks.make_trunk builds them)."""
+LrSchedule = Literal[LR_SCHEDULES]
+"""Learning-rate schedules `lr_schedule` can name (mosaic_policy.common.run_progress)."""
 
 
 @dataclass
@@ -153,7 +154,8 @@ class DemoConditionedConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(
-                f"`lr_schedule` must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}: pass e.g. --policy.lr_schedule=cosine."
+                f"`lr_schedule` must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}: "
+                "pass e.g. --policy.lr_schedule=cosine."
             )
         if not 0.0 <= self.lr_final_ratio <= 1.0:
             raise ValueError(f"`lr_final_ratio` must be in [0, 1], got {self.lr_final_ratio}.")
