@@ -5,7 +5,8 @@ attention (demo frames self-attend; every observation frame attends to its own t
 per-frame embedding (with `demo_summary`, joined with an ordered summary vector of the attended demo frames) ->
 discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head
 predicts the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA
-target encoder shapes the representation before and/or after attention.
+target encoder shapes the representation before and/or after attention; with `variation_loss_weight`, a
+supervised contrastive loss groups the batch's attended demonstrations by variation.
 
 The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
 (the same in every row of the table); this module builds the attention and the contrastive modules.
@@ -28,6 +29,7 @@ from ..common.frame_features import FrameMemory, trunk_features
 from ..common.run_progress import run_progress
 from .configuration_mosaic import MosaicConfig
 from .contrastive import TemporalContrastiveModule, ema_momentum, ema_update, make_target, positive_indices
+from .variation_contrastive import nearest_is_same_variation, variation_contrastive_loss, variation_projector
 
 DEFAULT_EMA_STEPS = 100_000
 """EMA schedule length outside a lerobot-train run that tells it (LeRobot's default --steps)."""
@@ -52,6 +54,10 @@ class MosaicModel(DemoConditionedModel):
 
         self.contrastive_before = contrastive() if config.contrastive_before else None
         self.contrastive_after = contrastive() if config.contrastive_after else None
+        self.variation_projector = None
+        if config.variation_loss_weight > 0:
+            demo_dim = config.n_demo_frames * config.embed_dim
+            self.variation_projector = variation_projector(demo_dim, config.contrastive_hidden_dim, config.contrastive_dim)
         d = config.n_demo_frames
         self.register_buffer("demo_position", spatio_temporal_encoding(channels, list(range(d)), h, w), persistent=False)
         # Every observation frame has the temporal code "current frame" (index n_demo_frames), whatever T is.
@@ -189,6 +195,15 @@ class MosaicPolicy(DemoConditionedPolicy):
             contrastive = self._contrastive_loss(online, sample.demo, sample.obs, sample.valid)
             per_sample = per_sample + cfg.contrastive_loss_weight * contrastive
             info["contrastive_loss"] = contrastive.mean().item()
+        tasks = sample.batch.get("task")
+        if self.model.variation_projector is not None and self.training and tasks is not None:
+            projections = self.model.variation_projector(self.model.frame_embeddings(online["demo_post"]).flatten(1))
+            variation = variation_contrastive_loss(projections, list(tasks), cfg.contrastive_temperature)
+            per_sample = per_sample + cfg.variation_loss_weight * variation
+            info["variation_loss"] = variation.mean().item()
+            nearest = nearest_is_same_variation(projections, list(tasks))
+            if nearest is not None:  # a batch where no two samples share a variation has nothing to tell
+                info["variation_nearest"] = nearest
         return per_sample, info
 
     def _contrastive_loss(self, online: dict, demo: Tensor, obs: Tensor, valid: Tensor) -> Tensor:

@@ -61,6 +61,9 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     "frame_stride_1": ("this project: time scale", ("--policy.frame_stride=1",)),
     "demo_summary": ("this project: ordered demonstration summary", ("--policy.demo_summary=true",)),
     "lr_cosine": ("this project: learning-rate schedule", ("--policy.lr_schedule=cosine",)),
+    "variation_loss": (
+        "this project: demonstrations grouped by variation", ("--policy.variation_loss_weight=20",),
+    ),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
 positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride, constant learning rate)."""

@@ -59,12 +59,14 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
             "--save_freq=2",
             "--log_freq=1",
             f"--output_dir={output}",
+            "--policy.variation_loss_weight=1",  # this project's option: LeRobot's batches carry the task strings
             *SMALL,
         ],
         cwd=tmp_path,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert "contrastive_loss" in result.stdout + result.stderr
+    assert "variation_loss" in result.stdout + result.stderr
     assert "[robosuite" not in result.stdout + result.stderr  # training does not load the simulator
 
     from lerobot.policies.factory import make_pre_post_processors
@@ -75,6 +77,7 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     saved = load_file(checkpoint / "model.safetensors")
     state = policy.state_dict()
     assert saved.keys() == state.keys()
+    assert any(key.startswith("model.variation_projector.") for key in saved)
     assert all(torch.equal(saved[k], state[k]) for k in saved)
     assert int(policy.ema_step) == 2  # update() ran after each optimizer step
     train_config = json.loads((output / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())

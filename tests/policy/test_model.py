@@ -3,6 +3,8 @@ a cached demo (and its attention weights), the loss balancing, errors. What ever
 checkpoints, demo conditioning, acting as training computes, also with the full attention pattern) is tested
 once for all in test_all_policies.py."""
 
+import math
+
 import pytest
 import torch
 from tests.helpers.policy import HEIGHT, IMAGE_KEY, WIDTH, random_batch, small_config
@@ -38,6 +40,7 @@ def test_paper_defaults():
         ("n_demo_frames", 1),
         ("vision_backbone", "resnet50"),
         ("summary_dim", 0),
+        ("variation_loss_weight", -1.0),
     ],
 )
 def test_config_rejects_bad_values_naming_the_field(field, value):
@@ -147,6 +150,7 @@ def test_wrong_image_size_is_a_clear_error(policy):
         {"contrastive_positive": "same", "n_attention_layers": 1, "n_demo_frames": 3},
         {"attention_pattern": "full", "use_state": False},
         {"demo_summary": True, "summary_hidden_dim": 32, "summary_dim": 16},
+        {"variation_loss_weight": 5.0, "contrastive": "off"},
     ],
 )
 def test_ablations_train(overrides):
@@ -177,6 +181,47 @@ def test_the_demo_summary_is_off_by_default_and_reads_the_demo_frames_in_order()
     assert summary_parameters
     for name, parameter in summary_parameters:
         assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
+
+
+def test_the_variation_loss_is_off_by_default_and_trains_the_demonstration_stream():
+    """Off (the paper's model): no projector weights, no logged figure. On: the loss is logged, it is 0 for a batch
+    whose variations are all different (nothing to group), and its gradient reaches the trunk through the demo
+    frames alone (the observation frames' and the other losses' are switched off)."""
+    assert not any("variation" in name for name in MosaicPolicy(small_config()).state_dict())
+    torch.manual_seed(0)
+    config = small_config(variation_loss_weight=1.0, contrastive="off", bc_loss_weight=0.0, inverse_loss_weight=0.0)
+    policy = MosaicPolicy(config).train()
+    batch = random_batch(policy.config, batch_size=4)  # two variations, two samples each
+    loss, info = policy.forward(batch)
+    assert info["variation_loss"] > 0 and 0.0 <= info["variation_nearest"] <= 1.0
+    loss.backward()
+    trunk_gradient = sum(p.grad.abs().sum() for p in policy.model.trunk.parameters() if p.grad is not None)
+    assert trunk_gradient > 0
+    batch["task"] = ["a", "b", "c", "d"]
+    _, info = policy.forward(batch)
+    assert info["variation_loss"] == 0.0 and "variation_nearest" not in info
+    assert "variation_loss" not in MosaicPolicy(small_config()).train().forward(random_batch(config))[1]
+
+
+def test_the_variation_loss_of_known_projections():
+    """Two variations, two samples each, the same variation's projections identical and the other's orthogonal:
+    each sample's one positive has similarity 1 against two negatives at 0, so the loss is
+    log(1 + 2 exp(-1 / t)); a variation with a single sample has no positive and a loss of 0. The logged share of
+    samples whose nearest other projection shows their variation: 1 when grouped, 0 when swapped, none to tell
+    when no two samples share a variation."""
+    from mosaic_policy.mosaic.variation_contrastive import nearest_is_same_variation, variation_contrastive_loss
+
+    x, y = torch.tensor([1.0, 0.0]), torch.tensor([0.0, 2.0])
+    loss = variation_contrastive_loss(torch.stack([x, x, y, y]), ["push", "push", "pull", "pull"], 0.5)
+    torch.testing.assert_close(loss, torch.full((4,), math.log(1 + 2 * math.exp(-2.0))))
+    loss = variation_contrastive_loss(torch.stack([x, x, y]), ["push", "push", "pull"], 0.5)
+    torch.testing.assert_close(loss[2], torch.tensor(0.0))
+    torch.testing.assert_close(loss[0], torch.tensor(math.log(1 + math.exp(-2.0))))
+    assert nearest_is_same_variation(torch.stack([x, x, y]), ["push", "push", "pull"]) == 1.0
+    assert nearest_is_same_variation(torch.stack([x, y, x, y]), ["push", "push", "pull", "pull"]) == 0.0
+    assert nearest_is_same_variation(torch.stack([x, y]), ["push", "pull"]) is None
+    with pytest.raises(ValueError, match="3 projections but 2 variation labels"):
+        variation_contrastive_loss(torch.stack([x, x, y]), ["push", "pull"], 0.5)
 
 
 def test_loss_is_averaged_per_variation_then_per_task():
