@@ -197,11 +197,12 @@ class MosaicPolicy(DemoConditionedPolicy):
             info["contrastive_loss"] = contrastive.mean().item()
         tasks = sample.batch.get("task")
         if self.model.variation_projector is not None and self.training and tasks is not None:
+            tasks = list(tasks)
             projections = self.model.variation_projector(self.model.frame_embeddings(online["demo_post"]).flatten(1))
-            variation = variation_contrastive_loss(projections, list(tasks), cfg.contrastive_temperature)
+            variation = variation_contrastive_loss(projections, tasks, cfg.contrastive_temperature)
             per_sample = per_sample + cfg.variation_loss_weight * variation
             info["variation_loss"] = variation.mean().item()
-            nearest = nearest_is_same_variation(projections, list(tasks))
+            nearest = nearest_is_same_variation(projections, tasks)
             if nearest is not None:  # a batch where no two samples share a variation has nothing to tell
                 info["variation_nearest"] = nearest
         return per_sample, info

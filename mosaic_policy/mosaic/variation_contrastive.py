@@ -29,13 +29,11 @@ def variation_contrastive_loss(projections: Tensor, variations: Sequence[str], t
     """
     if projections.shape[0] != len(variations):
         raise ValueError(f"{projections.shape[0]} projections but {len(variations)} variation labels.")
-    n = projections.shape[0]
-    labels = _label_codes(variations, projections.device)
     z = F.normalize(projections, dim=-1)
     logits = (z @ z.T) / temperature
-    itself = torch.eye(n, dtype=torch.bool, device=projections.device)
+    itself = torch.eye(projections.shape[0], dtype=torch.bool, device=projections.device)
     log_prob = logits - torch.logsumexp(logits.masked_fill(itself, float("-inf")), dim=1, keepdim=True)
-    positive = (labels[:, None] == labels[None, :]) & ~itself
+    positive = _partners(variations, projections.device)
     n_positive = positive.sum(1)
     loss = -(log_prob * positive).sum(1) / n_positive.clamp(min=1)
     return torch.where(n_positive > 0, loss, torch.zeros_like(loss))
@@ -46,17 +44,17 @@ def nearest_is_same_variation(projections: Tensor, variations: Sequence[str]) ->
     variation another sample of the batch shows (None if none): 1 when the projections tell the variations apart.
     The loss's own scale depends on the batch (its floor is the log of each sample's number of positives); this
     figure reads the same whatever the batch."""
-    labels = _label_codes(variations, projections.device)
-    z = F.normalize(projections.detach(), dim=-1)
-    similarity = (z @ z.T).fill_diagonal_(float("-inf"))
-    itself = torch.eye(len(labels), dtype=torch.bool, device=projections.device)
-    has_positive = ((labels[:, None] == labels[None, :]) & ~itself).any(1)
+    positive = _partners(variations, projections.device)
+    has_positive = positive.any(1)
     if not has_positive.any():
         return None
-    nearest = similarity.argmax(1)
-    return (labels[nearest] == labels)[has_positive].float().mean().item()
+    z = F.normalize(projections.detach(), dim=-1)
+    nearest = (z @ z.T).fill_diagonal_(float("-inf")).argmax(1)
+    return positive[torch.arange(len(nearest)), nearest][has_positive].float().mean().item()
 
 
-def _label_codes(variations: Sequence[str], device: torch.device) -> Tensor:
+def _partners(variations: Sequence[str], device: torch.device) -> Tensor:
+    """(B, B) bool: sample j shows sample i's variation, j != i."""
     codes = {name: i for i, name in enumerate(dict.fromkeys(variations))}
-    return torch.tensor([codes[name] for name in variations], device=device)
+    labels = torch.tensor([codes[name] for name in variations], device=device)
+    return (labels[:, None] == labels[None, :]).fill_diagonal_(False)
