@@ -87,6 +87,10 @@ class DemoConditionedConfig(PreTrainedConfig):
     use_state: bool = False
     # With use_state: the state components the head reads, by name, e.g. [gripper_opening] (empty: all of them).
     state_components: list[str] = field(default_factory=list)
+    # Predict each chunk's x, y, z targets as offsets from the hand position of the frame that predicts it
+    # (observation.state x, y, z), converted back to absolute targets inside the policy: one frame then needs the
+    # next move's direction, not the hand's exact place in the image. Rotation and gripper stay absolute.
+    hand_relative_targets: bool = False
     # Logistic mixture components per action dimension.
     n_mixtures: int = 3
     # Discretisation bins per action dimension over the normalised range [-1, 1].

@@ -41,6 +41,7 @@ from .configuration_demo import DemoConditionedConfig
 from .demo_conditioning import DemoConditioning, to_float_frames
 from .discretized_logistic import DiscretizedLogisticMixture
 from .distributed import average_batchnorm_statistics, rank_random_generators
+from .hand_relative import HandRelativeTargets, check_state_names, dataset_offset_stats
 from .paired_sampling import demo_frame_indices
 
 if TYPE_CHECKING:
@@ -55,7 +56,7 @@ class TrainingSample:
 
     obs: Tensor  # (B, T, 3, H, W) float in [0, 1], un-augmented
     demo: Tensor  # (B, D, 3, H, W) float in [0, 1], un-augmented
-    chunks: Tensor  # (B, T, action_chunk, A) normalised targets that follow each observation frame
+    chunks: Tensor  # (B, T, action_chunk, A) normalised targets that follow each frame (hand_relative_targets: offsets)
     chunk_valid: Tensor  # (B, T, action_chunk) real targets of real frames
     valid: Tensor  # (B, T) real observation frames (not padding past the episode's end)
     state: Tensor | None  # (B, T, state_dim) or None
@@ -121,12 +122,30 @@ class DemoConditionedPolicy(PreTrainedPolicy):
             blur_probability=config.blur_probability,
         )
         self.build(self.image_hw, self.state_dim if config.use_state else 0, self.action_dim)
+        self.hand_relative = self._hand_relative_targets(dataset_meta, kwargs.get("agent_episodes"))
         if dataset_meta is not None:
             self.conditioning = DemoConditioning.for_training(config, dataset_meta, kwargs.get("agent_episodes"))
         else:
             self.conditioning = DemoConditioning(None, config.balance_loss)
         self._rank_streams = False  # set once this process has its own random stream (multi-process training)
         self.reset()
+
+    def _hand_relative_targets(self, dataset_meta, episodes: list[int] | None) -> HandRelativeTargets | None:
+        """With `hand_relative_targets`: the converter, fitted to the training dataset (a loaded policy's comes from
+        its checkpoint)."""
+        if not self.config.hand_relative_targets:
+            return None
+        if self.config.robot_state_feature is None:
+            raise ValueError(
+                "`hand_relative_targets` needs observation.state (the hand position): train on a dataset that has it "
+                "or pass --policy.hand_relative_targets=false."
+            )
+        converter = HandRelativeTargets()
+        if dataset_meta is not None:
+            check_state_names(dataset_meta.features.get(OBS_STATE, {}).get("names"))
+            offsets = dataset_offset_stats(dataset_meta.root, dataset_meta.features, self.config.action_chunk, episodes)
+            converter.fit(dataset_meta.stats, offsets)
+        return converter
 
     # -- what a policy supplies ----------------------------------------------------------------------------
 
@@ -264,11 +283,20 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         self._ensure_demo(batch)
         image, state = self.current_inputs(batch)
         distribution = self.chunk_distribution(image, state, self._context)
-        return self.actions_of(distribution)
+        return self.actions_of(distribution, state)
 
-    def actions_of(self, distribution: DiscretizedLogisticMixture) -> Tensor:
+    def actions_of(self, distribution: DiscretizedLogisticMixture, state: Tensor | None) -> Tensor:
+        """Normalised absolute targets (B, action_chunk, A) from the head's distribution for the current frame
+        (with `hand_relative_targets`, its offsets are added to the hand position of ``state``)."""
         action = distribution.sample() if self.config.action_sampling == "sample" else distribution.mode()
-        return action.reshape(action.shape[0], self.config.action_chunk, self.action_dim)
+        chunk = action.reshape(action.shape[0], self.config.action_chunk, self.action_dim)
+        if self.hand_relative is None:
+            return chunk
+        if state is None:
+            raise ValueError(
+                f"this policy predicts targets relative to the hand: give it {OBS_STATE} (the hand position) with the image."
+            )
+        return self.hand_relative.to_absolute(chunk, state)
 
     def check_image_size(self, frames: Tensor, what: str) -> None:
         if tuple(frames.shape[-2:]) != self.image_hw or frames.shape[-3] != 3:
@@ -296,6 +324,10 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         state = batch.get(OBS_STATE)
         if state is not None and state.dim() == 2:
             state = state.unsqueeze(1)
+        if self.hand_relative is not None:
+            if state is None:
+                raise ValueError(f"`hand_relative_targets` needs {OBS_STATE} (the hand position) in every training batch.")
+            chunks = self.hand_relative.to_relative(chunks, state)  # each frame's chunk from its own hand position
         return TrainingSample(obs, demo, chunks, chunk_valid & valid[:, :, None], valid, state, batch)
 
     def forward(self, batch: dict[str, Any], reduction: str = "mean") -> tuple[Tensor, dict]:

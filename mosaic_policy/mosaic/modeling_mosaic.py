@@ -163,7 +163,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         self._ensure_demo(batch)
         image, state = self.current_inputs(batch)
         distribution = self._distribution(image, state, self._context, return_weights)
-        return self.actions_of(distribution)
+        return self.actions_of(distribution, state)
 
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Any) -> DiscretizedLogisticMixture:
         return self._distribution(image, state, context, return_weights=False)

@@ -64,6 +64,7 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     "variation_loss": (
         "this project: demonstrations grouped by variation", ("--policy.variation_loss_weight=20",),
     ),
+    "hand_relative": ("this project: position targets relative to the hand", ("--policy.hand_relative_targets=true",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
 positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride, constant learning rate)."""

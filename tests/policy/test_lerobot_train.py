@@ -60,6 +60,7 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
             "--log_freq=1",
             f"--output_dir={output}",
             "--policy.variation_loss_weight=1",  # this project's option: LeRobot's batches carry the task strings
+            "--policy.hand_relative_targets=true",  # fitted to the dataset lerobot-train hands the policy
             *SMALL,
         ],
         cwd=tmp_path,
@@ -78,6 +79,8 @@ def test_lerobot_train_runs_and_its_checkpoint_loads(door_datasets, tmp_path):
     state = policy.state_dict()
     assert saved.keys() == state.keys()
     assert any(key.startswith("model.variation_projector.") for key in saved)
+    assert saved["hand_relative.offset_max"].gt(saved["hand_relative.offset_min"]).all()  # measured, not the default
+    assert not torch.equal(saved["hand_relative.state_std"], torch.ones(3))
     assert all(torch.equal(saved[k], state[k]) for k in saved)
     assert int(policy.ema_step) == 2  # update() ran after each optimizer step
     train_config = json.loads((output / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
