@@ -71,23 +71,28 @@ class HandRelativeTargets(nn.Module):
         """World hand position (..., 3) from the normalised state (..., S)."""
         return state[..., :POSITION_DIMS] * (self.state_std + NORMALISER_EPS) + self.state_mean
 
-    def _absolute(self, normalised: Tensor) -> Tensor:
-        return (normalised + 1.0) / 2.0 * (self.action_max - self.action_min) + self.action_min
-
-    def _normalised_absolute(self, position: Tensor) -> Tensor:
-        return 2.0 * (position - self.action_min) / (self.action_max - self.action_min) - 1.0
-
     def to_relative(self, chunks: Tensor, state: Tensor) -> Tensor:
         """Normalised absolute chunks (..., chunk, A) -> normalised offsets from the hand of ``state`` (..., S)."""
-        offset = self._absolute(chunks[..., :POSITION_DIMS]) - self._hand(state).unsqueeze(-2)
-        scaled = 2.0 * (offset - self.offset_min) / (self.offset_max - self.offset_min) - 1.0
-        return torch.cat([scaled.clamp(-1.0, 1.0), chunks[..., POSITION_DIMS:]], dim=-1)
+        position = _from_unit_range(chunks[..., :POSITION_DIMS], self.action_min, self.action_max)
+        offset = position - self._hand(state).unsqueeze(-2)
+        scaled = _to_unit_range(offset, self.offset_min, self.offset_max).clamp(-1.0, 1.0)
+        return torch.cat([scaled, chunks[..., POSITION_DIMS:]], dim=-1)
 
     def to_absolute(self, chunks: Tensor, state: Tensor) -> Tensor:
         """Normalised offsets (..., chunk, A) from the hand of ``state`` (..., S) -> normalised absolute targets."""
-        offset = (chunks[..., :POSITION_DIMS] + 1.0) / 2.0 * (self.offset_max - self.offset_min) + self.offset_min
+        offset = _from_unit_range(chunks[..., :POSITION_DIMS], self.offset_min, self.offset_max)
         position = self._hand(state).unsqueeze(-2) + offset
-        return torch.cat([self._normalised_absolute(position), chunks[..., POSITION_DIMS:]], dim=-1)
+        return torch.cat([_to_unit_range(position, self.action_min, self.action_max), chunks[..., POSITION_DIMS:]], dim=-1)
+
+
+def _to_unit_range(value: Tensor, low: Tensor, high: Tensor) -> Tensor:
+    """[low, high] -> [-1, 1], as LeRobot's MIN_MAX normalisation maps."""
+    return 2.0 * (value - low) / (high - low) - 1.0
+
+
+def _from_unit_range(normalised: Tensor, low: Tensor, high: Tensor) -> Tensor:
+    """[-1, 1] -> [low, high], the inverse of :func:`_to_unit_range`."""
+    return (normalised + 1.0) / 2.0 * (high - low) + low
 
 
 def check_state_names(state_names: list[str] | None) -> None:
