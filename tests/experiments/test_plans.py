@@ -102,24 +102,27 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
-    # 5 methods x 5000 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, each
-    # baseline's step scaled by its measured ratio (0.73 + 0.43 + 0.46 + 0.94): 5000 x 0.7 x 3.56 s = 3.5 hours
+    # 5 methods x 2250 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, MOSAIC's
+    # scaled by 1.09 for the preset's demonstration summary, each baseline's by its measured ratio
+    # (0.73 + 0.43 + 0.46 + 0.94): 2250 x 0.7 x 3.65 s = 1.6 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
     out = capsys.readouterr().out
-    assert "training about 3.5 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
+    assert "training about 1.6 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
     assert "a baseline's step: tosil 0.73x, lstm_osil 0.43x, mlp_osil 0.46x, daml 0.94x of it)" in out
-    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 0.64 + 0.55 + 0.56 + 0.48: 11.2 hours
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 1.09 + 0.64 + 0.55 + 0.56 + 0.48: 5.2 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 11.2 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
-    # one baseline alone: LSTM at 0.43x, 5000 x 0.7 x 0.43 s = 25 minutes
+    assert "training about 5.2 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
+    # one baseline alone: LSTM at 0.43x, 2250 x 0.7 x 0.43 s = 11 minutes
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "lstm"), "--dry-run",
               "--set", "learning_methods=lstm_osil"])
-    assert "training about 25 minutes on 2 CPU cores" in capsys.readouterr().out
-    # MOSAIC with the demonstration summary: its step scaled by 1.09, 5000 x 0.7 x 1.09 s = 64 minutes, "1.1 hours"
-    cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "summary"), "--dry-run",
-              "--set", "mosaic_options=--policy.demo_summary=true"])
-    assert "training about 1.1 hours on 2 CPU cores" in capsys.readouterr().out
+    assert "training about 11 minutes on 2 CPU cores" in capsys.readouterr().out
+    # MOSAIC as the preset has it (with the summary): 2250 x 0.7 x 1.09 s = 29 minutes; the paper's MOSAIC: 26
+    cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "preset"), "--dry-run"])
+    assert "training about 29 minutes on 2 CPU cores" in capsys.readouterr().out
+    cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "paper_model"), "--dry-run",
+              "--set", "mosaic_options="])
+    assert "training about 26 minutes on 2 CPU cores" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -251,6 +254,20 @@ def test_mosaic_options_go_to_new_mosaic_models_only(tmp_path):
         assert ("--policy.demo_summary=true" in stage.command) is not from_checkpoint  # kept in its config.json
 
 
+def test_cpu_preset_trains_mosaic_with_the_combination_that_finishes_the_door(tmp_path):
+    plan = build_plan("learning", PRESETS["cpu"], tmp_path / "learning")
+    (train,) = [s for s in plan.stages if s.kind == "train"]
+    for option in ("--policy.demo_summary=true", "--policy.variation_loss_weight=20",
+                   "--policy.hand_relative_targets=true", "--policy.action_chunk=10", "--steps=2250"):
+        assert option in train.command
+    evaluations = [s for s in plan.stages if s.kind == "evaluate"]
+    assert len(evaluations) == 3  # the learning curve: 750, 1500, 2250
+    assert all(s.command[s.command.index("--episodes-per-variation") + 1] == "20" for s in evaluations)
+    single = build_plan("single-task", PRESETS["cpu"], tmp_path / "single", tasks=("door",))
+    baselines = [s for s in single.stages if s.kind == "train" and "/mosaic/" not in s.key]
+    assert len(baselines) == 4 and all("--policy.hand_relative_targets=true" not in s.command for s in baselines)
+
+
 def test_action_noise_goes_to_the_collection(tmp_path):
     plan = build_plan("learning", resolve_preset("smoke", ["action_noise=0.005"]), tmp_path / "exp")
     collect = plan.stages[0].command
@@ -283,9 +300,11 @@ def test_the_report_names_the_training_options_of_its_preset():
 
     text = settings_text("cpu", PRESETS["cpu"], [])
     assert "lerobot-train options of every run: `--policy.action_chunk=10`." in text
-    assert "Of MOSAIC's runs" not in text
-    with_summary = resolve_preset("cpu", ["mosaic_options=--policy.demo_summary=true"])
+    assert ("Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true "
+            "--policy.variation_loss_weight=20 --policy.hand_relative_targets=true`.") in text
+    assert "Of MOSAIC's runs" not in settings_text("quick", PRESETS["quick"], [])
+    with_summary = resolve_preset("quick", ["mosaic_options=--policy.demo_summary=true"])
     assert "Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true`." in settings_text(
-        "cpu", with_summary, []
+        "quick", with_summary, []
     )
-    assert "options" not in settings_text("smoke", PRESETS["smoke"], [])
+    assert "options" not in settings_text("paper", PRESETS["paper"], [])
