@@ -79,6 +79,9 @@ class DemoConditionedConfig(PreTrainedConfig):
     # resnet18 trunk's; fewer make a cheaper step (128: 0.51 s against 0.65 s in lerobot-train on 2 cores, and
     # less learned per step). The resnet18 trunk always gives 256.
     conv_channels: int = 256
+    # Spatial soft-argmax keypoints of the conv trunk's third layer (H/8 x W/8), as 2K of its `conv_channels`: finer
+    # positions than its H/16 x W/16 map gives (0: none).
+    conv_keypoints: int = 0
     # Per-frame embedding size fed to the action and inverse-dynamics heads.
     embed_dim: int = 256
     # Hidden width of the action / inverse-dynamics MLPs.
@@ -146,6 +149,16 @@ class DemoConditionedConfig(PreTrainedConfig):
             )
         if self.conv_channels < 8 or self.conv_channels % 8:
             raise ValueError(f"`conv_channels` must be a multiple of 8 (e.g. 128 or 256), got {self.conv_channels}.")
+        if self.conv_keypoints < 0 or 2 * self.conv_keypoints >= self.conv_channels:
+            raise ValueError(
+                f"`conv_keypoints` must be >= 0 and fill fewer than the {self.conv_channels} `conv_channels` (2 per "
+                f"keypoint), got {self.conv_keypoints}: e.g. --policy.conv_keypoints=16."
+            )
+        if self.vision_backbone != "conv" and self.conv_keypoints:
+            raise ValueError(
+                f"`conv_keypoints` adds keypoints to the conv trunk; the {self.vision_backbone} trunk has none: pass "
+                "--policy.vision_backbone=conv with it."
+            )
         if self.vision_backbone != "conv" and self.conv_channels != 256:
             raise ValueError(
                 f"`conv_channels`={self.conv_channels} sets the conv trunk's width; the {self.vision_backbone} trunk "

@@ -19,5 +19,5 @@ def make_trunk(config: DemoConditionedConfig) -> nn.Module:
     if backbone == "conv":
         from .conv_trunk import ConvTrunk
 
-        return ConvTrunk(config.conv_channels)
+        return ConvTrunk(config.conv_channels, config.conv_keypoints)
     raise ValueError(f"`vision_backbone` must be one of {VISION_BACKBONES}, got {backbone!r}.")

@@ -46,6 +46,7 @@ from ..common.demo_conditioned_model import DemoConditionedModel
 from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, expand_to_batch
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import EMBED_CHANNELS, trunk_features
+from ..common.keypoints import SpatialSoftArgmax
 from .configuration_daml import DamlConfig
 
 N_KEYPOINTS = EMBED_CHANNELS
@@ -56,21 +57,6 @@ ADAPT_KERNEL = 3
 
 AdaptedWeights = dict[str, Tensor]
 """The adapted policy MLP's tensors by parameter name, each with a leading batch axis (one set per demo)."""
-
-
-class SpatialSoftArgmax(nn.Module):
-    """(N, C, h, w) features -> (N, 2K) keypoints: a 1x1 convolution to K maps, a softmax over each map's
-    locations, and the expected (x, y) in [-1, 1]. DAML's feature points: where things are, not what they are."""
-
-    def __init__(self, channels: int, height: int, width: int, n_keypoints: int = N_KEYPOINTS):
-        super().__init__()
-        self.conv = nn.Conv2d(channels, n_keypoints, 1, bias=False)  # a softmax ignores a per-map shift
-        ys, xs = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width), indexing="ij")
-        self.register_buffer("grid", torch.stack([xs.flatten(), ys.flatten()], dim=-1), persistent=False)  # (h*w, 2)
-
-    def forward(self, features: Tensor) -> Tensor:
-        attention = self.conv(features).flatten(2).softmax(dim=-1)  # (N, K, h*w)
-        return (attention @ self.grid).flatten(1)  # (N, K * 2): x, y of each keypoint
 
 
 def policy_mlp(in_dim: int, hidden_dim: int, n_hidden: int, out_dim: int) -> nn.Sequential:
@@ -126,7 +112,7 @@ class DamlModel(DemoConditionedModel):
 
     def build_context(self, channels: int, height: int, width: int) -> None:
         config = self.config
-        self.keypoints = SpatialSoftArgmax(channels, height, width)
+        self.keypoints = SpatialSoftArgmax(channels, N_KEYPOINTS)
         self.policy = policy_mlp(2 * N_KEYPOINTS, config.policy_hidden_dim, config.n_policy_layers, config.embed_dim)
 
     def frame_keypoints(self, trunk: nn.Module, frames: Tensor) -> Tensor:

@@ -171,6 +171,31 @@ def test_the_demo_dependence_bench_compares_the_right_and_a_wrong_demonstration(
         demo_dependence.main(["--policy.path", checkpoint, "--data-dir", str(tmp_path / "none")])
 
 
+def test_the_demo_separation_bench_places_fresh_demonstrations_by_the_training_ones(trained_checkpoints, door_datasets, tmp_path, capsys):
+    """`python -m pipelines.bench.demo_separation` on a lerobot-train MOSAIC checkpoint, its Sawyer dataset and new
+    expert demonstrations: a row per vector MOSAIC's heads read, counts out of the demonstrations used; a baseline's
+    checkpoint or a folder without the dataset is one line naming the fix."""
+    from pipelines.bench import demo_separation
+
+    _, demo_root = door_datasets
+    (tmp_path / "mosaic").mkdir()
+    (tmp_path / "mosaic" / "door_sawyer").symlink_to(demo_root)
+    checkpoint = str(trained_checkpoints["mosaic"])
+    demo_separation.main(["--policy.path", checkpoint, "--data-dir", str(tmp_path), "--variations", "0,1", "--demos", "1",
+                          "--fresh", "1"])
+    rows = [line.strip("|").split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "/" in line]
+    assert [row[0].strip() for row in rows][0] == "demonstration embedding"
+    for row in rows:
+        assert row[1].strip() == "2/2"  # one demonstration per variation is its own centroid
+        fresh = int(row[2].strip().split("/")[0])
+        assert row[2].strip().endswith("/2") and 0 <= fresh <= 2 and row[3].strip().startswith("0: ")
+
+    with pytest.raises(SystemExit, match="is a mlp_osil policy.*--policy.type=mosaic"):
+        demo_separation.main(["--policy.path", str(trained_checkpoints["mlp_osil"]), "--data-dir", str(tmp_path)])
+    with pytest.raises(SystemExit, match="no dataset at .*mosaic-data collect --task door"):
+        demo_separation.main(["--policy.path", checkpoint, "--data-dir", str(tmp_path / "none")])
+
+
 def test_mosaic_eval_puts_every_policy_side_by_side_with_its_confusion_matrix(trained_checkpoints, tmp_path):
     output = tmp_path / "eval" / "results.json"
     paths = [f"--policy.path={checkpoint}" for checkpoint in trained_checkpoints.values()]
@@ -277,18 +302,19 @@ def test_gradients_reach_every_trainable_parameter_and_lerobots_factory_finds_th
 @pytest.mark.parametrize("policy_type", POLICY_TYPES)
 def test_every_policy_trains_acts_and_round_trips_with_the_conv_trunk(policy_type, tmp_path):
     """`vision_backbone="conv"` builds the small trunk in every type, at the width `conv_channels` sets (every
-    task context and head follows it): a training step reaches every trainable parameter, the saved config.json
-    keeps the choice, and the loaded policy acts exactly as the saved one (with its BatchNorm-folded inference
-    copy of the trunk)."""
+    task context and head follows it) and with `conv_keypoints`: a training step reaches every trainable parameter
+    (the keypoints' convolution too), the saved config.json keeps the choice, and the loaded policy acts exactly
+    as the saved one (with its BatchNorm-folded inference copy of the trunk)."""
     from lerobot.configs.policies import PreTrainedConfig
 
     from mosaic_policy import policy_class
     from mosaic_policy.common.conv_trunk import ConvTrunk
 
     torch.manual_seed(0)
-    config = small_config(policy_type=policy_type, vision_backbone="conv", conv_channels=64)
+    config = small_config(policy_type=policy_type, vision_backbone="conv", conv_channels=64, conv_keypoints=4)
     policy = policy_class(policy_type)(config).train()
     assert isinstance(policy.model.trunk, ConvTrunk) and policy.model.feature_shape == (64, 2, 4)
+    assert policy.model.trunk.n_keypoints == 4
     assert all(isinstance(m, ConvTrunk) for name, m in policy.named_children() if name == "target_trunk")
     optimizer = torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
     loss, _ = policy.forward(random_batch(config, seed=1))
@@ -301,7 +327,7 @@ def test_every_policy_trains_acts_and_round_trips_with_the_conv_trunk(policy_typ
 
     policy.eval().save_pretrained(tmp_path / "ckpt")
     saved = PreTrainedConfig.from_pretrained(tmp_path / "ckpt")
-    assert saved.vision_backbone == "conv" and saved.conv_channels == 64
+    assert saved.vision_backbone == "conv" and saved.conv_channels == 64 and saved.conv_keypoints == 4
     loaded = policy_class(policy_type).from_pretrained(tmp_path / "ckpt").eval()
     assert loaded.config.vision_backbone == "conv" and isinstance(loaded.model.trunk, ConvTrunk)
     assert loaded.model.feature_shape == (64, 2, 4)

@@ -16,6 +16,7 @@ from mosaic_policy.mosaic.contrastive import (
 )
 from mosaic_policy.common.discretized_logistic import DiscretizedLogisticMixture
 from mosaic_policy.common.conv_trunk import ConvTrunk
+from mosaic_policy.common.keypoints import SpatialSoftArgmax
 from mosaic_policy.common.resnet_trunk import ResNetTrunk
 from mosaic_policy.common.trunks import make_trunk
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
@@ -42,10 +43,12 @@ def test_conv_trunk_gives_the_resnet_trunks_feature_shape(height, width):
     assert sum(p.numel() for p in conv.parameters()) < sum(p.numel() for p in resnet.parameters()) / 5
 
 
-@pytest.mark.parametrize("backbone, trunk_class", [("resnet18", ResNetTrunk), ("conv", ConvTrunk)])
-def test_every_backbone_builds_through_make_trunk_and_its_fused_copy_matches_the_eval_trunk(backbone, trunk_class):
+@pytest.mark.parametrize(
+    "backbone, keypoints, trunk_class", [("resnet18", 0, ResNetTrunk), ("conv", 0, ConvTrunk), ("conv", 16, ConvTrunk)]
+)
+def test_every_backbone_builds_through_make_trunk_and_its_fused_copy_matches_the_eval_trunk(backbone, keypoints, trunk_class):
     torch.manual_seed(0)
-    trunk = make_trunk(small_config(vision_backbone=backbone))
+    trunk = make_trunk(small_config(vision_backbone=backbone, conv_keypoints=keypoints))
     assert type(trunk) is trunk_class
     trunk.train()
     with torch.no_grad():
@@ -58,6 +61,35 @@ def test_every_backbone_builds_through_make_trunk_and_its_fused_copy_matches_the
     images = torch.rand(3, 3, 32, 56)
     with torch.no_grad():
         torch.testing.assert_close(fused(images), trunk(images), atol=1e-4, rtol=1e-4)
+
+
+def test_spatial_soft_argmax_finds_where_a_map_peaks_between_grid_points():
+    """A map that fires at one location gives that location's coordinates; two equal peaks give their midpoint,
+    finer than the grid."""
+    soft_argmax = SpatialSoftArgmax(channels=1, n_keypoints=1)
+    torch.nn.init.ones_(soft_argmax.conv.weight)
+    features = torch.full((2, 1, 3, 5), -1e4)
+    features[0, 0, 0, 0] = 0.0  # top left
+    features[1, 0, 2, 3] = features[1, 0, 2, 4] = 0.0  # bottom row, between the last two columns
+    torch.testing.assert_close(soft_argmax(features), torch.tensor([[-1.0, -1.0], [0.75, 1.0]]))
+
+
+def test_conv_trunk_keypoints_fill_the_last_channels_with_the_third_layers_soft_argmax():
+    """`conv_keypoints=K`: the same feature shape; the last 2K channels are the keypoints of the H/8 x W/8 map,
+    the same at every location, in [-1, 1]."""
+    torch.manual_seed(0)
+    trunk = ConvTrunk(256, keypoints=16).eval()
+    images = torch.rand(2, 3, 48, 88)
+    with torch.no_grad():
+        features = trunk(images)
+        finer = trunk.layers[:9]((images - 0.5) / 0.25)
+        expected = trunk.keypoints(finer)
+    assert features.shape == (2, 256, 3, 6) and finer.shape[2:] == (6, 11)
+    points = features[:, -32:]
+    assert torch.equal(points, points[:, :, :1, :1].expand_as(points))
+    torch.testing.assert_close(points[:, :, 0, 0], expected)
+    assert points.abs().max() <= 1
+    assert trunk.layers[-3].out_channels == 256 - 32
 
 
 # -- discretised logistic ----------------------------------------------------------------------------------

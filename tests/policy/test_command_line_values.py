@@ -42,6 +42,8 @@ def test_a_bad_vision_backbone_on_the_command_line_is_one_line_naming_the_choice
     [
         (["--vision_backbone=conv", "--conv_channels=100"], "`conv_channels` must be a multiple of 8"),
         (["--vision_backbone=resnet18", "--conv_channels=128"], "pass --policy.vision_backbone=conv with it"),
+        (["--vision_backbone=conv", "--conv_keypoints=128"], "fill fewer than the 256 `conv_channels`"),
+        (["--vision_backbone=resnet18", "--conv_keypoints=16"], "the resnet18 trunk has none"),
     ],
 )
 def test_a_conv_width_that_cannot_be_built_is_refused_naming_the_fix(args, message):
