@@ -52,7 +52,7 @@ def episodes_of(dataset, variation: int, count: int) -> list[tuple[torch.Tensor,
         if len(found) == count:
             break
     if not found:
-        raise SystemExit(f"demo_dependence: no episode of variation {variation} in {dataset.root}: collect it first.")
+        raise SystemExit(f"no episode of variation {variation} in {dataset.root}: collect it first.")
     return found
 
 
@@ -83,29 +83,38 @@ def dependence_table(policy, postprocessor, agent, demos_right, demos_wrong, eve
     return sums / np.maximum(counts, 1)[:, None]
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def bench_parser(doc: str, data_dir_help: str) -> argparse.ArgumentParser:
+    """The arguments the demonstration benches share: the checkpoint, the collected data, the task."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--policy.path", dest="policy_path", type=Path, required=True)
-    parser.add_argument("--data-dir", type=Path, required=True, help="holds mosaic/<task>_panda and mosaic/<task>_sawyer")
+    parser.add_argument("--data-dir", type=Path, required=True, help=data_dir_help)
     parser.add_argument("--task", default="door", choices=sorted(TASK_SPECS))
+    return parser
+
+
+def open_dataset(bench: str, data_dir: Path, task: str, robot: str):
+    """The LeRobot dataset DATA_DIR/mosaic/<task>_<robot>, or one line naming the command that collects it."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = data_dir / "mosaic" / f"{task}_{robot}"
+    if not (root / "meta" / "info.json").is_file():
+        raise SystemExit(f"{bench}: no dataset at {root}: mosaic-data collect --task {task} --output-dir {data_dir}")
+    return LeRobotDataset(f"mosaic/{task}_{robot}", root=root)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = bench_parser(__doc__, "holds mosaic/<task>_panda and mosaic/<task>_sawyer")
     parser.add_argument("--variations", default="0,1", help="two variation indices A,B")
     parser.add_argument("--episodes", type=int, default=2, help="agent episodes per variation")
     parser.add_argument("--demos", type=int, default=3, help="demonstrations per variation")
     parser.add_argument("--every", type=int, default=2, help="use every k-th frame")
     args = parser.parse_args(argv)
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     torch.set_num_threads(1)
     variations = TASK_SPECS[args.task].variations
     pair = [int(v) for v in args.variations.split(",")]
     if len(pair) != 2 or not all(0 <= v < len(variations) for v in pair):
         raise SystemExit(f"demo_dependence: --variations takes two indices of {args.task}'s 0..{len(variations) - 1}.")
-    datasets = {}
-    for robot in ("panda", "sawyer"):
-        root = args.data_dir / "mosaic" / f"{args.task}_{robot}"
-        if not (root / "meta" / "info.json").is_file():
-            raise SystemExit(f"demo_dependence: no dataset at {root}: mosaic-data collect --task {args.task} --output-dir {args.data_dir}")
-        datasets[robot] = LeRobotDataset(f"mosaic/{args.task}_{robot}", root=root)
+    datasets = {robot: open_dataset("demo_dependence", args.data_dir, args.task, robot) for robot in ("panda", "sawyer")}
     policy, postprocessor = load_policy(args.policy_path)
     demos = {v: [frames for frames, _ in episodes_of(datasets["sawyer"], v, args.demos)] for v in pair}
     for shown, other in (pair, pair[::-1]):

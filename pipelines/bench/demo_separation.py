@@ -17,15 +17,12 @@ demonstrations land on a wrong centroid here) or read it and failed to act on it
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import numpy as np
 import torch
 
 from mosaic_data.tasks.spec import TASK_SPECS
 
-from .demo_dependence import episodes_of, load_policy
+from .demo_dependence import bench_parser, episodes_of, load_policy, open_dataset
 
 
 @torch.no_grad()
@@ -96,31 +93,23 @@ def separation_table(policy, task: str, train_demos: dict[int, list[torch.Tensor
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--policy.path", dest="policy_path", type=Path, required=True)
-    parser.add_argument("--data-dir", type=Path, required=True, help="holds mosaic/<task>_sawyer")
-    parser.add_argument("--task", default="door", choices=sorted(TASK_SPECS))
+    parser = bench_parser(__doc__, "holds mosaic/<task>_sawyer")
     parser.add_argument("--variations", default="", help="variation indices, comma-separated (default: all)")
     parser.add_argument("--demos", type=int, default=20, help="training demonstrations per variation (the centroids)")
     parser.add_argument("--fresh", type=int, default=10, help="new expert demonstrations per variation")
     args = parser.parse_args(argv)
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     torch.set_num_threads(1)
     count = len(TASK_SPECS[args.task].variations)
     variations = [int(v) for v in args.variations.split(",") if v] or list(range(count))
     if len(variations) < 2 or not all(0 <= v < count for v in variations):
         raise SystemExit(f"demo_separation: --variations takes two or more of {args.task}'s 0..{count - 1}.")
-    root = args.data_dir / "mosaic" / f"{args.task}_sawyer"
-    if not (root / "meta" / "info.json").is_file():
-        raise SystemExit(f"demo_separation: no dataset at {root}: mosaic-data collect --task {args.task} --output-dir {args.data_dir}")
+    dataset = open_dataset("demo_separation", args.data_dir, args.task, "sawyer")
     policy, _ = load_policy(args.policy_path)
     if getattr(policy, "name", None) != "mosaic":
         raise SystemExit(
             f"demo_separation: {args.policy_path} is a {getattr(policy, 'name', type(policy).__name__)} policy; it reads "
             "MOSAIC's demonstration stream: give a --policy.type=mosaic checkpoint."
         )
-    dataset = LeRobotDataset(f"mosaic/{args.task}_sawyer", root=root)
     train_demos = {v: [frames for frames, _ in episodes_of(dataset, v, args.demos)] for v in variations}
     rows = separation_table(policy, args.task, train_demos, args.fresh)
     shown = {v: len(demos) for v, demos in train_demos.items()}
