@@ -15,7 +15,6 @@ class SpatialSoftArgmax(nn.Module):
 
     def __init__(self, channels: int, n_keypoints: int):
         super().__init__()
-        self.n_keypoints = n_keypoints
         self.conv = nn.Conv2d(channels, n_keypoints, 1, bias=False)  # a softmax ignores a per-map shift
 
     def forward(self, features: Tensor) -> Tensor:

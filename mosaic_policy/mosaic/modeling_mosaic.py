@@ -72,6 +72,11 @@ class MosaicModel(DemoConditionedModel):
             self.summary = context_mlp(demo_dim, 2, config.summary_hidden_dim, config.summary_dim)
             self.summary_fuse = fusion_layer(config.embed_dim, config.summary_dim)
 
+    def attend_demo(self, trunk: nn.Module, demo: Tensor) -> tuple[Tensor, list[tuple[Tensor, Tensor]]]:
+        """(B, D, 3, H, W) demo frames -> attended demo features (B, C, D, h, w) and every attention layer's demo
+        keys/values: the demo stream, which depends on the demo only."""
+        return self.attention.encode_demo(trunk_features(trunk, demo) + self.demo_position)
+
     def summarize_demo(self, demo_post: Tensor) -> Tensor | None:
         """(B, C, D, h, w) attended demo features -> (B, summary_dim) ordered summary; None without `demo_summary`."""
         if self.summary is None:
@@ -142,8 +147,7 @@ class MosaicPolicy(DemoConditionedPolicy):
     def encode_demo(self, demo: Tensor) -> dict[str, Any]:
         """Every attention layer's demo keys/values ("cache") and, with `demo_summary`, the summary vector
         ("summary"): the demo stream depends on the demo only."""
-        features = trunk_features(self.trunk_for_inference(), demo) + self.model.demo_position
-        demo_out, cache = self.model.attention.encode_demo(features)
+        demo_out, cache = self.model.attend_demo(self.trunk_for_inference(), demo)
         summary = self.model.summarize_demo(demo_out)
         return {"cache": cache} if summary is None else {"cache": cache, "summary": summary}
 

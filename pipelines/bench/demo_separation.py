@@ -30,14 +30,12 @@ def demo_vectors(policy, frames: torch.Tensor | np.ndarray) -> dict[str, np.ndar
     """The vectors MOSAIC's heads read from one demonstration (all its frames, (N, 3, H, W) or (N, H, W, 3)): the
     policy picks its demonstration frames as ``set_demo`` does."""
     from mosaic_policy.common.demo_conditioning import to_float_frames
-    from mosaic_policy.common.frame_features import trunk_features
     from mosaic_policy.common.paired_sampling import demo_frame_indices
 
     model = policy.model
     frames = to_float_frames(frames)
     frames = frames[demo_frame_indices(frames.shape[0], policy.config.n_demo_frames)][None].to(policy.device)
-    features = trunk_features(model.trunk, frames) + model.demo_position
-    demo_out, _ = model.attention.encode_demo(features)
+    demo_out, _ = model.attend_demo(model.trunk, frames)
     embedding = model.frame_embeddings(demo_out).flatten(1)
     vectors = {"demonstration embedding": embedding}
     if model.summary is not None:
