@@ -48,7 +48,7 @@ class ExperimentPreset:
     learning_tasks: tuple[str, ...] = ("door",)
     learning_methods: tuple[str, ...] = ("mosaic",)
     variations: tuple[int, ...] = ()  # collected, trained on and evaluated (empty: every variation of each task)
-    action_noise: str = ""  # mosaic-data collect --action-noise POS[,ROT] (DART-style); empty: none
+    action_noise: str = ""  # --action-noise POS[,ROT] (DART) for the Panda's collection, the Sawyer's clean; "": none
     train_options: tuple[str, ...] = ()  # more lerobot-train options for every run, space-separated in --set
     # More lerobot-train options for new MOSAIC models only (this project's additions the baselines lack); the
     # ablations recipe leaves them out, its rows are the paper's MOSAIC with one change.

@@ -126,19 +126,28 @@ class PlanBuilder:
 
     # data
     def dataset(self, task: str) -> DataPair:
+        """The task's dataset pair, collected by one stage, or two with ``action_noise``.
+
+        DART noise is for the agent's data only: the Sawyer's videos are what the policy is shown, and at
+        evaluation they are clean expert demonstrations, so with noise the Panda (``collect/<task>``, perturbed)
+        and the Sawyer (``collect/<task>_sawyer``, clean) are collected apart.
+        """
         p = self.preset
         check_variations(task, p.variations)
-        selection = (("--variations", ",".join(map(str, p.variations))) if p.variations else ()) + (
-            ("--action-noise", p.action_noise) if p.action_noise else ()
-        )
-        self.plan.add(Stage(
-            key=f"collect/{task}", kind="collect", output=self.data_dir / "mosaic" / f"{task}_panda",
-            title=f"collect {task} (Panda and Sawyer, {p.episodes} episodes per variation"
-                  f"{', variations ' + ','.join(map(str, p.variations)) if p.variations else ''})",
-            command=("mosaic-data", "collect", "--task", task, "--robot", "both", "--episodes", str(p.episodes),
-                     "--image-size", p.image_size, *selection, *executor_args(p), "--output-dir",
-                     str(self.data_dir), "--quiet"),
-        ))
+        selection = ("--variations", ",".join(map(str, p.variations))) if p.variations else ()
+        which = f"{p.episodes} episodes per variation" + (
+            f", variations {','.join(map(str, p.variations))}" if p.variations else "")
+        collections = ([("panda", ("--action-noise", p.action_noise), f"Panda with action noise {p.action_noise}"),
+                        ("sawyer", (), "Sawyer")] if p.action_noise else [("both", (), "Panda and Sawyer")])
+        for robot, noise, robots in collections:
+            self.plan.add(Stage(
+                key=f"collect/{task}" + ("_sawyer" if robot == "sawyer" else ""), kind="collect",
+                output=self.data_dir / "mosaic" / f"{task}_{'sawyer' if robot == 'sawyer' else 'panda'}",
+                title=f"collect {task} ({robots}, {which})",
+                command=("mosaic-data", "collect", "--task", task, "--robot", robot, "--episodes", str(p.episodes),
+                         "--image-size", p.image_size, *selection, *noise, *executor_args(p), "--output-dir",
+                         str(self.data_dir), "--quiet"),
+            ))
         return DataPair(f"mosaic/{task}_panda", self.data_dir / "mosaic" / f"{task}_panda",
                         f"mosaic/{task}_sawyer", self.data_dir / "mosaic" / f"{task}_sawyer", (task,))
 

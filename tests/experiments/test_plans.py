@@ -268,10 +268,19 @@ def test_cpu_preset_trains_mosaic_with_the_combination_that_finishes_the_door(tm
     assert len(baselines) == 4 and all("--policy.hand_relative_targets=true" not in s.command for s in baselines)
 
 
-def test_action_noise_goes_to_the_collection(tmp_path):
+def test_action_noise_goes_to_the_panda_collection_only(tmp_path):
     plan = build_plan("learning", resolve_preset("smoke", ["action_noise=0.005"]), tmp_path / "exp")
-    collect = plan.stages[0].command
-    assert collect[collect.index("--action-noise") + 1] == "0.005" and "--variations" not in collect
+    collects = {s.key: s.command for s in plan.stages if s.kind == "collect"}
+    panda, sawyer = collects["collect/door"], collects["collect/door_sawyer"]
+    assert panda[panda.index("--robot") + 1] == "panda" and panda[panda.index("--action-noise") + 1] == "0.005"
+    assert sawyer[sawyer.index("--robot") + 1] == "sawyer" and "--action-noise" not in sawyer
+    assert "--variations" not in panda + sawyer
+    train = next(s.command for s in plan.stages if s.kind == "train")
+    data = tmp_path / "exp" / "data" / "mosaic"
+    assert f"--dataset.root={data / 'door_panda'}" in train and f"--policy.demo_root={data / 'door_sawyer'}" in train
+    clean = build_plan("learning", resolve_preset("smoke", []), tmp_path / "clean")
+    (collect,) = [s.command for s in clean.stages if s.kind == "collect"]
+    assert collect[collect.index("--robot") + 1] == "both" and "--action-noise" not in collect
 
 
 @pytest.mark.parametrize(
