@@ -137,12 +137,14 @@ class PlanBuilder:
         selection = ("--variations", ",".join(map(str, p.variations))) if p.variations else ()
         which = f"{p.episodes} episodes per variation" + (
             f", variations {','.join(map(str, p.variations))}" if p.variations else "")
-        collections = ([("panda", ("--action-noise", p.action_noise), f"Panda with action noise {p.action_noise}"),
-                        ("sawyer", (), "Sawyer")] if p.action_noise else [("both", (), "Panda and Sawyer")])
-        for robot, noise, robots in collections:
+        # (stage key, --robot, the dataset the stage is done by, options, title)
+        collections = ([(f"collect/{task}", "panda", "panda", ("--action-noise", p.action_noise),
+                         f"Panda with action noise {p.action_noise}"),
+                        (f"collect/{task}_sawyer", "sawyer", "sawyer", (), "Sawyer")] if p.action_noise
+                       else [(f"collect/{task}", "both", "panda", (), "Panda and Sawyer")])
+        for key, robot, made, noise, robots in collections:
             self.plan.add(Stage(
-                key=f"collect/{task}" + ("_sawyer" if robot == "sawyer" else ""), kind="collect",
-                output=self.data_dir / "mosaic" / f"{task}_{'sawyer' if robot == 'sawyer' else 'panda'}",
+                key=key, kind="collect", output=self.data_dir / "mosaic" / f"{task}_{made}",
                 title=f"collect {task} ({robots}, {which})",
                 command=("mosaic-data", "collect", "--task", task, "--robot", robot, "--episodes", str(p.episodes),
                          "--image-size", p.image_size, *selection, *noise, *executor_args(p), "--output-dir",
