@@ -29,3 +29,28 @@ def task_env_cache():
     yield get
     for env in cache.values():
         env.close()
+
+
+LONGEST_FILES = (
+    "tests/collection/test_data_safety.py",
+    "tests/experiments/test_smoke_recipes.py",
+    "tests/policy/test_all_policies.py",
+    "tests/test_tasks.py",
+    "tests/collection/test_ray_executor.py",
+    "tests/evaluation/test_eval_hardening.py",
+    "tests/collection/test_ray_cluster.py",
+    "tests/collection/test_collect.py",
+    "tests/evaluation/test_ray_eval.py",
+    "tests/test_quiet_startup.py",
+    "tests/evaluation/test_same_numbers.py",
+    "tests/evaluation/test_mosaic_eval.py",
+)
+"""The suite's longest test files (a minute or more of one worker each), longest first."""
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """The longest files run first. ``scripts/test.sh`` hands whole files to pytest-xdist's workers in collection
+    order (``--dist=loadfile --no-loadscope-reorder``): a long file handed out last keeps one worker busy minutes
+    after the other has run out of work. The sort is stable, so every other file keeps pytest's order."""
+    rank = {path: index for index, path in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))

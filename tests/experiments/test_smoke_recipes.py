@@ -1,10 +1,11 @@
 """The smoke preset end to end with the real tools: mosaic-data collect/merge, lerobot-train, mosaic-eval.
 
-CI runs two recipes: learning (collect, train, evaluate every checkpoint, report, a rerun that skips it all) and
-fine-tune on one data fraction, with a kill in the middle and a resume; they share one data folder, as experiments
-of one preset may. Every policy type trains and evaluates through the same commands in
-tests/policy/test_all_policies.py; the report's tables and figures of every recipe are checked in test_report.py.
-"""
+The fast suite runs the learning recipe (collect, train, evaluate every checkpoint, report) with a kill in its
+training stage, a resume that reruns that stage only, and a rerun that skips it all. The fine-tune recipe (a
+novel-task model, fine-tuned and from-scratch runs: eight stages) runs end to end under ``-m slow``; its commands are
+checked in test_plans.py. Both share one data folder, as experiments of one preset may. Every policy type trains and
+evaluates through the same commands in tests/policy/test_all_policies.py; the report's tables and figures of every
+recipe are checked in test_report.py."""
 
 from __future__ import annotations
 
@@ -36,13 +37,9 @@ def _run(arguments: list[str], **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run([*EXPERIMENT, *arguments], capture_output=True, text=True, timeout=1200, **kwargs)
 
 
-def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, tmp_path):
-    output = tmp_path / "fine"
-    overrides = [f"fine_tune_fractions={FINE_TUNE_FRACTION}", "fine_tune_save_every=2"]  # one checkpoint per run
-    arguments = ["run", "fine-tune", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data),
-                 *(f"--set={o}" for o in overrides)]
-    plan = build_plan("fine-tune", resolve_preset("smoke", overrides), output, smoke_data)
-    target = next(s for s in plan.stages if s.key == f"train/fine-tune/door/mosaic/fine-tune-{FINE_TUNE_FRACTION}/seed1")
+def _kill_in_stage(arguments: list[str], output: Path, plan, target) -> dict[str, float]:
+    """Runs the recipe until ``target`` has started, kills the driver and its stage as a lost machine would (no
+    clean-up), and returns the finished stages' ``done.json`` times: exactly the stages before ``target``."""
     driver = subprocess.Popen([*EXPERIMENT, *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               start_new_session=True)
     deadline = time.monotonic() + 900
@@ -51,19 +48,33 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
         assert time.monotonic() < deadline
         time.sleep(0.2)
     time.sleep(2)  # into lerobot-train's start
-    os.killpg(driver.pid, signal.SIGKILL)  # the machine goes away: driver and stage, no clean-up
+    os.killpg(driver.pid, signal.SIGKILL)
     driver.wait()
     finished = {s.key: (stage_folder(output, s) / "done.json").stat().st_mtime for s in plan.stages if is_done(output, s)}
-    index = plan.stages.index(target)
-    assert set(finished) == {s.key for s in plan.stages[:index]}
+    assert set(finished) == {s.key for s in plan.stages[: plan.stages.index(target)]}
+    return finished
 
+
+def _resume(arguments: list[str], output: Path, plan, target, finished: dict[str, float]) -> None:
+    """Runs the killed recipe again: it skips the finished stages untouched and resumes ``target`` alone."""
     result = _run(arguments)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    assert result.stdout.count("done before, skipped") == index
+    assert result.stdout.count("done before, skipped") == len(finished)
     assert f"{target.title} (resuming) ..." in result.stdout
     assert result.stdout.count("(resuming)") == 1
-    for key, mtime in finished.items():  # the stages finished before the kill were not run again
+    for key, mtime in finished.items():
         assert (output / "stages" / key / "done.json").stat().st_mtime == mtime
+
+
+@pytest.mark.slow
+def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, tmp_path):
+    output = tmp_path / "fine"
+    overrides = [f"fine_tune_fractions={FINE_TUNE_FRACTION}", "fine_tune_save_every=2"]  # one checkpoint per run
+    arguments = ["run", "fine-tune", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data),
+                 *(f"--set={o}" for o in overrides)]
+    plan = build_plan("fine-tune", resolve_preset("smoke", overrides), output, smoke_data)
+    target = next(s for s in plan.stages if s.key == f"train/fine-tune/door/mosaic/fine-tune-{FINE_TUNE_FRACTION}/seed1")
+    _resume(arguments, output, plan, target, _kill_in_stage(arguments, output, plan, target))
     summary = json.loads((output / "results.json").read_text())["recipes"][0]
     curves = {(c["mode"], c["fraction"]): c for c in summary["curves"]}
     assert set(curves) == {("fine-tune", FINE_TUNE_FRACTION), ("scratch", FINE_TUNE_FRACTION)}
@@ -79,14 +90,14 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
     assert "novel-task/door/mosaic/seed1" in (stage_folder(output, target) / "log.txt").read_text()
 
 
-def test_learning_smoke_runs_every_stage_reports_each_checkpoint_and_resumes_as_done(smoke_data, tmp_path):
+def test_learning_smoke_killed_in_training_resumes_it_reports_each_checkpoint_and_reruns_as_done(smoke_data, tmp_path):
     output = tmp_path / "learning"
     overrides = ["steps=4"]  # checkpoints at steps 2 and 4, both evaluated
     arguments = ["run", "learning", "--preset", "smoke", "--output", str(output), "--data-dir", str(smoke_data),
                  *(f"--set={o}" for o in overrides)]
-    result = _run(arguments)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     plan = build_plan("learning", resolve_preset("smoke", overrides), output, smoke_data)
+    target = next(s for s in plan.stages if s.key.startswith("train/"))
+    _resume(arguments, output, plan, target, _kill_in_stage(arguments, output, plan, target))
     for stage in plan.stages:  # each stage kept its exact command (the dry run's) and its log
         folder = stage_folder(output, stage)
         assert (folder / "command.txt").read_text().strip() == stage.shell_line()
