@@ -9,8 +9,10 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("WANDB_MODE", "disabled")
 
 import pytest  # noqa: E402
+from filelock import FileLock  # noqa: E402
 
 from mosaic_data.tasks import make_task_env  # noqa: E402
+from tests.helpers.xdist_run import LONGEST_FILES, run_folder  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -31,21 +33,13 @@ def task_env_cache():
         env.close()
 
 
-LONGEST_FILES = (
-    "tests/collection/test_data_safety.py",
-    "tests/experiments/test_smoke_recipes.py",
-    "tests/policy/test_all_policies.py",
-    "tests/test_tasks.py",
-    "tests/collection/test_ray_executor.py",
-    "tests/evaluation/test_eval_hardening.py",
-    "tests/collection/test_ray_cluster.py",
-    "tests/collection/test_collect.py",
-    "tests/evaluation/test_ray_eval.py",
-    "tests/test_quiet_startup.py",
-    "tests/evaluation/test_same_numbers.py",
-    "tests/evaluation/test_mosaic_eval.py",
-)
-"""The suite's longest test files (a minute or more of one worker each), longest first."""
+@pytest.fixture(scope="module")
+def one_ray_session_at_a_time(tmp_path_factory):
+    """Held by every test module that starts Ray, for the whole module. A Ray session is a dozen processes (GCS,
+    raylets, dashboard and runtime-env agents, workers): two at once, one per xdist worker, brought a 2-core machine to
+    a load average of 80."""
+    with FileLock(run_folder(tmp_path_factory) / "ray_session.lock"):
+        yield
 
 
 def pytest_collection_modifyitems(config, items) -> None:

@@ -18,7 +18,7 @@ def test_sourcing_setup_keeps_the_callers_shell_options_and_folder(tmp_path):
 
 
 def test_the_longest_files_that_go_first_are_files_of_the_suite():
-    from tests.conftest import LONGEST_FILES
+    from tests.helpers.xdist_run import LONGEST_FILES
 
     assert len(set(LONGEST_FILES)) == len(LONGEST_FILES)
     assert [path for path in LONGEST_FILES if not (REPO / path).is_file()] == []

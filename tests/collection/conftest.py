@@ -14,6 +14,7 @@ import pytest  # noqa: E402
 from filelock import FileLock  # noqa: E402
 
 from tests.helpers.collection import HEIGHT, TEST_IMAGE_SIZE, WIDTH, run_cli  # noqa: E402
+from tests.helpers.xdist_run import run_folder  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -21,8 +22,7 @@ def door_output(tmp_path_factory):
     """Output dir holding mosaic/door_panda and mosaic/door_sawyer, collected with 2 workers. Collected once per
     pytest run: under pytest-xdist the first worker that asks collects it into the run's shared temporary folder
     (under a file lock) and the others read it. Tests copy it before changing anything."""
-    base = tmp_path_factory.getbasetemp()
-    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    shared = run_folder(tmp_path_factory)
     output, finished = shared / "door_datasets", shared / "door_datasets.finished"
     with FileLock(shared / "door_datasets.lock"):
         if not finished.exists():

@@ -20,6 +20,8 @@ from mosaic_data.collection.metadata import read_sidecar
 
 from tests.helpers.collection import TEST_IMAGE_SIZE
 
+pytestmark = pytest.mark.usefixtures("one_ray_session_at_a_time")
+
 RAY = str(Path(sys.executable).with_name("ray"))
 
 
@@ -40,7 +42,7 @@ def _nodes(address: str) -> int:
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def cluster(tmp_path_factory, one_ray_session_at_a_time):
     """(address, hidden folder, worker node process): a head node and a worker node of 1 CPU each; the worker node's processes see an
     empty tmpfs at ``hidden`` instead of the folder the driver sees."""
     if os.geteuid() != 0 or shutil.which("unshare") is None:

@@ -20,6 +20,8 @@ from mosaic_data.collection.validate import validate_dataset
 
 from tests.helpers.collection import TEST_IMAGE_SIZE, ctrl_c_reaches_it
 
+pytestmark = pytest.mark.usefixtures("one_ray_session_at_a_time")
+
 ARGS = ["collect", "--task", "door", "--robot", "panda", "--episodes", "1", "--executor", "ray", "--workers", "2",
         "--image-size", TEST_IMAGE_SIZE, "--quiet"]
 """The panda half of the shared ``door_output`` collection (every variation, 1 episode), on Ray."""

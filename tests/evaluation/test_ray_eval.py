@@ -11,7 +11,11 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from pipelines.evaluation.cli import main as mosaic_eval
+
+pytestmark = pytest.mark.usefixtures("one_ray_session_at_a_time")
 
 COMMON = ["--task", "door", "--variations", "0,3", "--episodes-per-variation", "2", "--max-steps", "8", "--seed", "5", "--quiet"]
 TIMING_FIELDS = ("rollout_s", "act_s", "demo_s")
