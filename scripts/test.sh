@@ -5,6 +5,6 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."  # paths below are relative to the repository root
 source scripts/setup.sh
 # One pytest worker per core (at most 4), each test file on one worker so its module fixtures are built once; most
-# tests wait on a subprocess (a collection, lerobot-train, mosaic-eval) for much of their time. Files are handed out
-# in collection order, which tests/conftest.py starts with the longest ones. The 15 slowest tests close the report.
-python -m pytest -q --numprocesses=auto --maxprocesses=4 --dist=loadfile --no-loadscope-reorder --durations=15 "$@"
+# tests wait on a subprocess (a collection, lerobot-train, mosaic-eval) for much of their time. The 15 slowest tests
+# close the report.
+python -m pytest -q --numprocesses=auto --maxprocesses=4 --dist=loadfile --durations=15 "$@"

@@ -12,7 +12,7 @@ import pytest  # noqa: E402
 from filelock import FileLock  # noqa: E402
 
 from mosaic_data.tasks import make_task_env  # noqa: E402
-from tests.helpers.xdist_run import LONGEST_FILES, run_folder  # noqa: E402
+from tests.helpers.xdist_run import run_folder  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -41,10 +41,3 @@ def one_ray_session_at_a_time(tmp_path_factory):
     with FileLock(run_folder(tmp_path_factory) / "ray_session.lock"):
         yield
 
-
-def pytest_collection_modifyitems(config, items) -> None:
-    """The longest files run first. ``scripts/test.sh`` hands whole files to pytest-xdist's workers in collection
-    order (``--dist=loadfile --no-loadscope-reorder``): a long file handed out last keeps one worker busy minutes
-    after the other has run out of work. The sort is stable, so every other file keeps pytest's order."""
-    rank = {path: index for index, path in enumerate(LONGEST_FILES)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))

@@ -1,5 +1,4 @@
-"""What the pytest-xdist workers of one run share: the order files are handed out in, and a temporary folder for the
-data and locks they share."""
+"""What the pytest-xdist workers of one run share: a temporary folder for the data and locks they share."""
 
 from __future__ import annotations
 
@@ -7,23 +6,6 @@ import os
 from pathlib import Path
 
 import pytest
-
-LONGEST_FILES = (
-    "tests/collection/test_data_safety.py",
-    "tests/experiments/test_smoke_recipes.py",
-    "tests/collection/test_ray_executor.py",
-    "tests/policy/test_all_policies.py",
-    "tests/test_tasks.py",
-    "tests/evaluation/test_eval_hardening.py",
-    "tests/collection/test_collect.py",
-    "tests/collection/test_ray_cluster.py",
-    "tests/test_quiet_startup.py",
-    "tests/evaluation/test_same_numbers.py",
-    "tests/evaluation/test_mosaic_eval.py",
-    "tests/evaluation/test_ray_eval.py",
-)
-"""The suite's longest test files (a minute or more of one worker each), longest first, with the three that start
-Ray spread apart: two Ray sessions at once wait on each other (see ``one_ray_session_at_a_time``)."""
 
 
 def run_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
