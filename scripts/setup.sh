@@ -44,7 +44,7 @@ mosaic_repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
         # pip takes 3. The plugin distributions are what LeRobot's discovery imports for --policy.type=mosaic and
         # --env.type=mosaic.
         .venv/bin/python -m pip install -q "uv==0.9.30"
-        .venv/bin/python -m uv pip install -q --python .venv/bin/python \
+        .venv/bin/python -m uv pip install -q --compile-bytecode --python .venv/bin/python \
             -e ".[test]" -e plugins/lerobot_policy_mosaic -e plugins/lerobot_env_mosaic
         touch "$stamp"
     fi
