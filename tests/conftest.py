@@ -40,4 +40,3 @@ def one_ray_session_at_a_time(tmp_path_factory):
     a load average of 80."""
     with FileLock(run_folder(tmp_path_factory) / "ray_session.lock"):
         yield
-

@@ -37,9 +37,10 @@ def _run(arguments: list[str], **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run([*EXPERIMENT, *arguments], capture_output=True, text=True, timeout=1200, **kwargs)
 
 
-def _kill_in_stage(arguments: list[str], output: Path, plan, target) -> dict[str, float]:
-    """Runs the recipe until ``target`` has started, kills the driver and its stage as a lost machine would (no
-    clean-up), and returns the finished stages' ``done.json`` times: exactly the stages before ``target``."""
+def _kill_in_stage_and_resume(arguments: list[str], output: Path, plan, target) -> None:
+    """Runs the recipe until ``target`` has started and kills the driver and its stage as a lost machine would (no
+    clean-up): exactly the stages before ``target`` are done. Run again, the recipe skips those untouched and
+    resumes ``target`` alone."""
     driver = subprocess.Popen([*EXPERIMENT, *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               start_new_session=True)
     deadline = time.monotonic() + 900
@@ -52,11 +53,7 @@ def _kill_in_stage(arguments: list[str], output: Path, plan, target) -> dict[str
     driver.wait()
     finished = {s.key: (stage_folder(output, s) / "done.json").stat().st_mtime for s in plan.stages if is_done(output, s)}
     assert set(finished) == {s.key for s in plan.stages[: plan.stages.index(target)]}
-    return finished
 
-
-def _resume(arguments: list[str], output: Path, plan, target, finished: dict[str, float]) -> None:
-    """Runs the killed recipe again: it skips the finished stages untouched and resumes ``target`` alone."""
     result = _run(arguments)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert result.stdout.count("done before, skipped") == len(finished)
@@ -74,7 +71,7 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
                  *(f"--set={o}" for o in overrides)]
     plan = build_plan("fine-tune", resolve_preset("smoke", overrides), output, smoke_data)
     target = next(s for s in plan.stages if s.key == f"train/fine-tune/door/mosaic/fine-tune-{FINE_TUNE_FRACTION}/seed1")
-    _resume(arguments, output, plan, target, _kill_in_stage(arguments, output, plan, target))
+    _kill_in_stage_and_resume(arguments, output, plan, target)
     summary = json.loads((output / "results.json").read_text())["recipes"][0]
     curves = {(c["mode"], c["fraction"]): c for c in summary["curves"]}
     assert set(curves) == {("fine-tune", FINE_TUNE_FRACTION), ("scratch", FINE_TUNE_FRACTION)}
@@ -97,7 +94,7 @@ def test_learning_smoke_killed_in_training_resumes_it_reports_each_checkpoint_an
                  *(f"--set={o}" for o in overrides)]
     plan = build_plan("learning", resolve_preset("smoke", overrides), output, smoke_data)
     target = next(s for s in plan.stages if s.key.startswith("train/"))
-    _resume(arguments, output, plan, target, _kill_in_stage(arguments, output, plan, target))
+    _kill_in_stage_and_resume(arguments, output, plan, target)
     for stage in plan.stages:  # each stage kept its exact command (the dry run's) and its log
         folder = stage_folder(output, stage)
         assert (folder / "command.txt").read_text().strip() == stage.shell_line()
