@@ -33,6 +33,11 @@ class WorkerResources:
         return {"num_cpus": self.num_cpus, "memory": int(self.memory_gb * GIB)}
 
 
+_session_is_ours = False
+"""True while :func:`ray_session` holds a Ray it started or connected itself: leaving it then ends this job, and
+Ray kills the job's worker processes with it."""
+
+
 class RayExecutorError(ValueError):
     """Ray could not run the work (not installed, cluster unreachable, no shared folder); the message names the fix."""
 
@@ -65,9 +70,12 @@ def ray_session(address: str | None, num_cpus: int | None = None) -> Iterator[An
             f"cannot reach a Ray cluster at --ray-address {address} ({(str(error).splitlines() or ['no answer'])[0]}): "
             "start one with `ray start --head` on the head node, or leave --ray-address out to run Ray on this machine"
         ) from None
+    global _session_is_ours
+    _session_is_ours = True
     try:
         yield ray
     finally:
+        _session_is_ours = False
         ray.shutdown()
 
 
@@ -155,7 +163,14 @@ def task_error_line(error: BaseException, what: str) -> str:
 
 
 def stop_tasks(ray: Any, refs: list) -> None:
-    """Cancel every unit still running (Ctrl-C, an error): their processes are killed, nothing half-written stays."""
+    """Stop every unit still running (Ctrl-C, an error): their processes are killed, nothing half-written stays.
+
+    In a session of :func:`ray_session`'s own, leaving the session ends the job and Ray kills its workers, so nothing
+    is cancelled here: a forced cancel racing with a unit that is just completing aborts the driver inside Ray
+    (``Check failed: it != submissible_tasks_.end()``, ray-project/ray#54846) instead of exiting with Ctrl-C's 130.
+    A session of the caller's (a notebook) stays open, so its units are cancelled."""
+    if _session_is_ours:
+        return
     for ref in refs:
         try:
             ray.cancel(ref, force=True)
