@@ -103,6 +103,12 @@ class DemoConditionedConfig(PreTrainedConfig):
     # Inference: query the policy every control step and average the targets its chunks give for that step, weight
     # exp(-coeff * i) for the i-th oldest (ACT's temporal ensembling); unset: hand out each chunk's targets in turn.
     temporal_ensemble_coeff: float | None = None
+    # Keep an exponential moving average of the weights with this decay (e.g. 0.995: about the last 200 steps;
+    # warmed up over the first steps) and act with it; unset: act with the trained weights. The average is saved in
+    # the checkpoint beside them (twice the file), so resuming goes on training the trained weights.
+    weight_average_decay: float | None = None
+    # With weight_average_decay: act with the average (true) or with the trained weights of the same checkpoint.
+    act_with_weight_average: bool = True
 
     # Weight of the behaviour-cloning loss (paper: 1).
     bc_loss_weight: float = 1.0
@@ -173,6 +179,11 @@ class DemoConditionedConfig(PreTrainedConfig):
             raise ValueError(
                 f"`lr_schedule` must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}: "
                 "pass e.g. --policy.lr_schedule=cosine."
+            )
+        if self.weight_average_decay is not None and not 0.0 < self.weight_average_decay < 1.0:
+            raise ValueError(
+                f"`weight_average_decay` must be in (0, 1), got {self.weight_average_decay}: pass e.g. "
+                "--policy.weight_average_decay=0.995, or leave it unset to act with the trained weights."
             )
         if not 0.0 <= self.lr_final_ratio <= 1.0:
             raise ValueError(f"`lr_final_ratio` must be in [0, 1], got {self.lr_final_ratio}.")

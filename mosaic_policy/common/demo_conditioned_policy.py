@@ -11,7 +11,8 @@ a policy with losses of its own overrides it.
 
 Inference: `policy.reset()` then `policy.set_demo(video)` once per episode (the policy encodes and caches what
 it can), then `select_action(batch)` every control step: the policy runs once per `action_chunk` steps and hands
-out the predicted targets in order. An environment can deliver the demonstration as the observation
+out the predicted targets in order. Subclasses act through :attr:`acting_model`: with `weight_average_decay` an
+average of the weights over training, else the trained model. An environment can deliver the demonstration as the observation
 `observation.demo` (what `lerobot-eval --env.type=mosaic` does): the first `select_action` after `reset()`
 caches it.
 
@@ -43,6 +44,7 @@ from .discretized_logistic import DiscretizedLogisticMixture
 from .distributed import average_batchnorm_statistics, rank_random_generators
 from .hand_relative import HandRelativeTargets, check_state_names, dataset_offset_stats
 from .paired_sampling import demo_frame_indices
+from .weight_average import ema_update, frozen_copy, warmed_up_decay
 
 if TYPE_CHECKING:
     from huggingface_hub import ModelCard
@@ -122,6 +124,10 @@ class DemoConditionedPolicy(PreTrainedPolicy):
             blur_probability=config.blur_probability,
         )
         self.build(self.image_hw, self.state_dim if config.use_state else 0, self.action_dim)
+        # The weights averaged over training (`weight_average_decay`); update() moves them after every step.
+        self.averaged_model = frozen_copy(self.model) if config.weight_average_decay is not None else None
+        if self.averaged_model is not None:
+            self.register_buffer("weight_average_updates", torch.zeros((), dtype=torch.long))
         self.hand_relative = self._hand_relative_targets(dataset_meta, kwargs.get("agent_episodes"))
         if dataset_meta is not None:
             self.conditioning = DemoConditioning.for_training(config, dataset_meta, kwargs.get("agent_episodes"))
@@ -206,7 +212,7 @@ class DemoConditionedPolicy(PreTrainedPolicy):
             frames = frames[:, demo_frame_indices(frames.shape[1], n)]
         # Inference uses a BatchNorm-folded channels-last copy of the trunk, rebuilt here so it follows training.
         # Kept out of the module tree (object.__setattr__): not a parameter, not in the checkpoint.
-        trunk = getattr(getattr(self, "model", None), "trunk", None)
+        trunk = getattr(self.acting_model, "trunk", None)
         fused = trunk.fused_for_inference() if trunk is not None and not self.training else None
         object.__setattr__(self, "_inference_trunk", fused)
         self.reset_memory()
@@ -217,10 +223,18 @@ class DemoConditionedPolicy(PreTrainedPolicy):
     def device(self) -> torch.device:
         return next(self.parameters()).device
 
+    @property
+    def acting_model(self) -> nn.Module:
+        """The model the policy acts with: outside training, the weight average when the policy keeps one (and
+        `act_with_weight_average`), else the trained model. In training mode always the trained one."""
+        if self.training or self.averaged_model is None or not self.config.act_with_weight_average:
+            return self.model
+        return self.averaged_model
+
     def trunk_for_inference(self) -> nn.Module:
-        """The fused trunk while acting (eval mode, after set_demo), else the trained one."""
+        """The fused trunk while acting (eval mode, after set_demo), else the acting model's."""
         fused = getattr(self, "_inference_trunk", None)
-        return fused if fused is not None and not self.training else self.model.trunk
+        return fused if fused is not None and not self.training else self.acting_model.trunk
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
@@ -353,8 +367,13 @@ class DemoConditionedPolicy(PreTrainedPolicy):
 
         Multi-process training: the BatchNorm running statistics are averaged over the ranks, so every rank holds
         the same state and the statistics the policy acts with come from the whole global batch (a no-op in one
-        process). Subclasses with their own post-step work (MOSAIC's EMA target) call this first."""
+        process). With `weight_average_decay` the averaged copy then takes its step towards the trained weights.
+        Subclasses with their own post-step work (MOSAIC's EMA target) call this first."""
         average_batchnorm_statistics(self)
+        if self.averaged_model is not None:
+            decay = warmed_up_decay(int(self.weight_average_updates), self.config.weight_average_decay)
+            ema_update(self.averaged_model, self.model, decay)
+            self.weight_average_updates += 1
 
     def action_chunks(self, batch: dict[str, Any], n_frames: int) -> tuple[Tensor, Tensor]:
         """Each observation frame's chunk of targets from the sample's action window, and which are real.

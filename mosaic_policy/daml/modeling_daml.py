@@ -136,7 +136,7 @@ class DamlPolicy(DemoConditionedPolicy):
     def adapt(self, demo_keypoints: Tensor) -> tuple[AdaptedWeights, Tensor]:
         """Per-sample adapted policy weights from demo keypoints (B, D, 2K), and each sample's inner loss
         before adaptation (B,). The module's own parameters are read, never written."""
-        params = dict(self.model.policy.named_parameters())
+        params = dict(self.acting_model.policy.named_parameters())
         step = vmap(self._inner_step, in_dims=(None, 0))  # the first step starts from the shared weights
         adapted, loss_before = step(params, demo_keypoints)
         for _ in range(self.config.inner_steps - 1):
@@ -149,17 +149,20 @@ class DamlPolicy(DemoConditionedPolicy):
         # (torch.func.grad still differentiates under an outer no_grad: a transform ignores it).
         with torch.no_grad() if self.config.first_order else contextlib.nullcontext():
             grads, loss = grad_and_value(self._adaptation_loss)(params, demo_keypoints)
-        rates = self.model.log_inner_lr.exp()
-        new = {name: params[name] - rates[i] * grads[name] for i, name in enumerate(self.model.adapted_names)}
+        model = self.acting_model
+        rates = model.log_inner_lr.exp()
+        new = {name: params[name] - rates[i] * grads[name] for i, name in enumerate(model.adapted_names)}
         return new, loss
 
     def _adaptation_loss(self, params: dict[str, Tensor], demo_keypoints: Tensor) -> Tensor:
         """The learned loss of one demo (D, 2K) under the policy weights `params`."""
-        return self.model.adapt_loss(functional_call(self.model.policy, params, (demo_keypoints,)))
+        model = self.acting_model
+        return model.adapt_loss(functional_call(model.policy, params, (demo_keypoints,)))
 
     def adapted_embeddings(self, adapted: AdaptedWeights, keypoints: Tensor) -> Tensor:
         """(B, T, 2K) keypoints through each sample's adapted MLP -> (B, T, embed_dim)."""
-        return vmap(lambda p, x: functional_call(self.model.policy, p, (x,)))(adapted, keypoints)
+        policy = self.acting_model.policy
+        return vmap(lambda p, x: functional_call(policy, p, (x,)))(adapted, keypoints)
 
     # -- inference ------------------------------------------------------------------------------------------
 
@@ -168,17 +171,18 @@ class DamlPolicy(DemoConditionedPolicy):
 
         `set_demo` runs this under `torch.no_grad()`: `torch.func.grad` takes its inner gradient regardless
         (a function transform ignores an outer no_grad), and the result carries no graph to keep."""
-        keypoints = self.model.frame_keypoints(self.trunk_for_inference(), demo)
+        keypoints = self.acting_model.frame_keypoints(self.trunk_for_inference(), demo)
         adapted, _ = self.adapt(keypoints)
         return {name: tensor.detach() for name, tensor in adapted.items()}
 
     def chunk_distribution(
         self, image: Tensor, state: Tensor | None, context: AdaptedWeights
     ) -> DiscretizedLogisticMixture:
-        keypoints = self.model.frame_keypoints(self.trunk_for_inference(), image.unsqueeze(1))  # (n, 1, 2K)
+        model = self.acting_model
+        keypoints = model.frame_keypoints(self.trunk_for_inference(), image.unsqueeze(1))  # (n, 1, 2K)
         adapted = expand_to_batch(context, keypoints.shape[0])
         embeddings = self.adapted_embeddings(adapted, keypoints)[:, 0]
-        return self.model.action_distribution(embeddings, state)
+        return model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
 

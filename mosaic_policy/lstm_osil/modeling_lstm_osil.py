@@ -72,11 +72,13 @@ class LstmOsilPolicy(DemoConditionedPolicy):
 
     def encode_demo(self, demo: Tensor) -> LstmState:
         """The LSTM state after reading the demonstration frames (depends on the demonstration only)."""
-        _, state = self.model.run_lstm(self.model.frame_vectors(self.trunk_for_inference(), demo))
+        model = self.acting_model
+        _, state = model.run_lstm(model.frame_vectors(self.trunk_for_inference(), demo))
         return state
 
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: LstmState) -> DiscretizedLogisticMixture:
-        vector = self.model.frame_vectors(self.trunk_for_inference(), image.unsqueeze(1))[:, 0]  # (B, E)
+        model = self.acting_model
+        vector = model.frame_vectors(self.trunk_for_inference(), image.unsqueeze(1))[:, 0]  # (B, E)
         h, c = expand_to_batch(context, vector.shape[0], dim=1)
         if self._memory and self._memory[-1].shape[0] != vector.shape[0]:
             raise ValueError(
@@ -84,7 +86,7 @@ class LstmOsilPolicy(DemoConditionedPolicy):
                 "call policy.reset() and set_demo() before changing it."
             )
         window = torch.stack([*self._memory, vector], dim=1)[:, -self.config.train_obs_frames :]  # current last
-        outputs, _ = self.model.run_lstm(window, (h.contiguous(), c.contiguous()))
-        distribution = self.model.action_distribution(self.model.output(outputs[:, -1]), state)
+        outputs, _ = model.run_lstm(window, (h.contiguous(), c.contiguous()))
+        distribution = model.action_distribution(model.output(outputs[:, -1]), state)
         self._memory.append(vector)  # remembered once the query succeeded: a failed one leaves the episode as it was
         return distribution

@@ -62,9 +62,11 @@ class MlpOsilPolicy(DemoConditionedPolicy):
 
     def encode_demo(self, demo: Tensor) -> Tensor:
         """The task context (B, context_dim): it depends on the demonstration only."""
-        return self.model.task_context(self.model.frame_vectors(self.trunk_for_inference(), demo))
+        model = self.acting_model
+        return model.task_context(model.frame_vectors(self.trunk_for_inference(), demo))
 
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Tensor) -> DiscretizedLogisticMixture:
-        vectors = self.model.frame_vectors(self.trunk_for_inference(), image.unsqueeze(1))  # (B, 1, E)
-        embeddings = self.model.fuse_context(vectors, expand_to_batch(context, vectors.shape[0]))[:, 0]
-        return self.model.action_distribution(embeddings, state)
+        model = self.acting_model
+        vectors = model.frame_vectors(self.trunk_for_inference(), image.unsqueeze(1))  # (B, 1, E)
+        embeddings = model.fuse_context(vectors, expand_to_batch(context, vectors.shape[0]))[:, 0]
+        return model.action_distribution(embeddings, state)

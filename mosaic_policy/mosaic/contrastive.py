@@ -8,35 +8,19 @@ batch is a negative. BYOL: 2 - 2 cos(q_i, k_pos(i)), no negatives.
 The target projector is updated by EMA with the encoder (the original code never updated it).
 """
 
-import copy
 import math
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..common.weight_average import ema_update, frozen_copy
+
 
 def ema_momentum(step: int, total_steps: int, base_momentum: float) -> float:
     """BYOL's cosine schedule: base_momentum at step 0 rising to 1 at total_steps."""
     progress = min(max(step, 0) / max(total_steps, 1), 1.0)
     return 1.0 - (1.0 - base_momentum) * (math.cos(math.pi * progress) + 1.0) / 2.0
-
-
-@torch.no_grad()
-def ema_update(target: nn.Module, online: nn.Module, momentum: float) -> None:
-    """target <- momentum * target + (1 - momentum) * online for parameters; buffers are copied."""
-    for t, o in zip(target.parameters(), online.parameters(), strict=True):
-        t.lerp_(o.detach(), 1.0 - momentum)
-    for t, o in zip(target.buffers(), online.buffers(), strict=True):
-        t.copy_(o)
-
-
-def make_target(online: nn.Module) -> nn.Module:
-    """A frozen copy of `online` for the EMA target branch."""
-    target = copy.deepcopy(online)
-    for p in target.parameters():
-        p.requires_grad_(False)
-    return target
 
 
 def positive_indices(
@@ -85,7 +69,7 @@ class TemporalContrastiveModule(nn.Module):
         self.projector = _mlp(feature_dim, hidden_dim, dim)
         self.predictor = _mlp(dim, hidden_dim, dim)
         self.bilinear = nn.Parameter(torch.eye(dim))
-        self.target_projector = make_target(self.projector)
+        self.target_projector = frozen_copy(self.projector)
 
     def trainable_parameters(self):
         return [p for n, p in self.named_parameters() if not n.startswith("target_projector.")]

@@ -27,8 +27,9 @@ from ..common.demo_summary import context_mlp, fuse_with_context, fusion_layer
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameMemory, trunk_features
 from ..common.run_progress import run_progress
+from ..common.weight_average import ema_update, frozen_copy
 from .configuration_mosaic import MosaicConfig
-from .contrastive import TemporalContrastiveModule, ema_momentum, ema_update, make_target, positive_indices
+from .contrastive import TemporalContrastiveModule, ema_momentum, positive_indices
 from .variation_contrastive import nearest_is_same_variation, variation_contrastive_loss, variation_projector
 
 DEFAULT_EMA_STEPS = 100_000
@@ -130,8 +131,8 @@ class MosaicPolicy(DemoConditionedPolicy):
         config = self.config
         self.model = MosaicModel(config, image_hw, state_dim, action_dim)
         # EMA target encoder (no gradients; updated in update() after every optimizer step).
-        self.target_trunk = make_target(self.model.trunk) if config.contrastive != "off" else None
-        self.target_attention = make_target(self.model.attention) if config.contrastive_after else None
+        self.target_trunk = frozen_copy(self.model.trunk) if config.contrastive != "off" else None
+        self.target_attention = frozen_copy(self.model.attention) if config.contrastive_after else None
         # Optimiser steps seen by update(); the EMA schedule's clock outside a lerobot-train run that tells it
         # (lerobot-train's scheduler restarts on fine-tuning and is restored on --resume: see run_progress).
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
@@ -147,8 +148,9 @@ class MosaicPolicy(DemoConditionedPolicy):
     def encode_demo(self, demo: Tensor) -> dict[str, Any]:
         """Every attention layer's demo keys/values ("cache") and, with `demo_summary`, the summary vector
         ("summary"): the demo stream depends on the demo only."""
-        demo_out, cache = self.model.attend_demo(self.trunk_for_inference(), demo)
-        summary = self.model.summarize_demo(demo_out)
+        model = self.acting_model
+        demo_out, cache = model.attend_demo(self.trunk_for_inference(), demo)
+        summary = model.summarize_demo(demo_out)
         return {"cache": cache} if summary is None else {"cache": cache, "summary": summary}
 
     @torch.no_grad()
@@ -175,18 +177,19 @@ class MosaicPolicy(DemoConditionedPolicy):
     def _distribution(
         self, image: Tensor, state: Tensor | None, context: dict[str, Any], return_weights: bool
     ) -> DiscretizedLogisticMixture:
+        model = self.acting_model
         features = trunk_features(self.trunk_for_inference(), image.unsqueeze(1))
         context = expand_to_batch(context, features.shape[0])
         cache = context["cache"]
         if self.config.attention_pattern == "full":  # recompute over the remembered frames, keep the current one
             window = self._memory.push(features[:, :, 0])
-            obs = window + self.model.obs_position_for(window.shape[2])
-            obs_out, self._last_weights = self.model.attention.attend_obs_causal(obs, cache)[:, :, -1:], []
+            obs = window + model.obs_position_for(window.shape[2])
+            obs_out, self._last_weights = model.attention.attend_obs_causal(obs, cache)[:, :, -1:], []
         else:
-            obs = features + self.model.obs_position
-            obs_out, self._last_weights = self.model.attention.attend_obs(obs, cache, return_weights)
-        embeddings = self.model.conditioned_embeddings(obs_out, context.get("summary"))[:, 0]
-        return self.model.action_distribution(embeddings, state)
+            obs = features + model.obs_position
+            obs_out, self._last_weights = model.attention.attend_obs(obs, cache, return_weights)
+        embeddings = model.conditioned_embeddings(obs_out, context.get("summary"))[:, 0]
+        return model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
 

@@ -165,16 +165,17 @@ class TosilPolicy(DemoConditionedPolicy):
     # -- inference ------------------------------------------------------------------------------------------
 
     def encode_demo(self, demo: Tensor) -> DemoCache:
-        return self.model.encode_demo(self.trunk_for_inference(), demo)
+        return self.acting_model.encode_demo(self.trunk_for_inference(), demo)
 
     def chunk_distribution(self, image: Tensor, state: Tensor | None, context: Any) -> DiscretizedLogisticMixture:
         """Remember the current frame, recompute the causal attention over the remembered frames (positions
         D..D+T'-1, current last, as the last frame of a training sample) and read the current frame's output."""
         features = trunk_features(self.trunk_for_inference(), image.unsqueeze(1))  # (B, C, 1, h, w)
         window = self._memory.push(features[:, :, 0])  # (B, C, T', h, w)
-        current = self.model.attend(window, context)[:, :, -1:]
-        embeddings = self.model.frame_embeddings(current)[:, 0]
-        return self.model.action_distribution(embeddings, state)
+        model = self.acting_model
+        current = model.attend(window, context)[:, :, -1:]
+        embeddings = model.frame_embeddings(current)[:, 0]
+        return model.action_distribution(embeddings, state)
 
     # -- training -------------------------------------------------------------------------------------------
 

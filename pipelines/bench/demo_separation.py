@@ -32,7 +32,7 @@ def demo_vectors(policy, frames: torch.Tensor | np.ndarray) -> dict[str, np.ndar
     from mosaic_policy.common.demo_conditioning import to_float_frames
     from mosaic_policy.common.paired_sampling import demo_frame_indices
 
-    model = policy.model
+    model = policy.acting_model
     frames = to_float_frames(frames)
     frames = frames[demo_frame_indices(frames.shape[0], policy.config.n_demo_frames)][None].to(policy.device)
     demo_out, _ = model.attend_demo(model.trunk, frames)

@@ -65,6 +65,7 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
         "this project: demonstrations grouped by variation", ("--policy.variation_loss_weight=20",),
     ),
     "hand_relative": ("this project: position targets relative to the hand", ("--policy.hand_relative_targets=true",)),
+    "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
 positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride, constant learning rate)."""

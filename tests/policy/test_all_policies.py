@@ -108,6 +108,7 @@ def trained_checkpoints(door_datasets, tmp_path_factory):
                 "--policy.embed_dim=32",
                 "--policy.head_hidden_dim=32",
                 "--policy.demo_loader_threads=1",
+                "--policy.weight_average_decay=0.9",  # every type acts below with its averaged weights
                 *small_flags(policy_type),
             ],
             base,
@@ -131,6 +132,7 @@ def test_every_trained_checkpoint_loads_through_lerobots_factory_and_acts(traine
         config = PreTrainedConfig.from_pretrained(checkpoint)
         assert config.type == policy_type and config.demo_root is None
         policy = get_policy_class(policy_type).from_pretrained(checkpoint, config=config).eval()
+        assert policy.acting_model is policy.averaged_model and int(policy.weight_average_updates) == 2, policy_type
         preprocessor, postprocessor = make_pre_post_processors(config, pretrained_path=str(checkpoint))
         policy.reset()
         policy.set_demo(torch.randint(0, 255, (20, HEIGHT, 56, 3), dtype=torch.uint8))

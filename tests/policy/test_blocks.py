@@ -10,8 +10,6 @@ from mosaic_policy.common.attention import NonLocalAttentionLayer, NonLocalAtten
 from mosaic_policy.mosaic.contrastive import (
     TemporalContrastiveModule,
     ema_momentum,
-    ema_update,
-    make_target,
     positive_indices,
 )
 from mosaic_policy.common.discretized_logistic import DiscretizedLogisticMixture
@@ -19,6 +17,7 @@ from mosaic_policy.common.conv_trunk import ConvTrunk
 from mosaic_policy.common.keypoints import SpatialSoftArgmax
 from mosaic_policy.common.resnet_trunk import ResNetTrunk
 from mosaic_policy.common.trunks import make_trunk
+from mosaic_policy.common.weight_average import ema_update, frozen_copy
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
 
 
@@ -385,7 +384,7 @@ def test_ema_schedule_and_update():
     assert ema_momentum(50, 100, 0.996) == pytest.approx(0.998)
     assert ema_momentum(100, 100, 0.996) == pytest.approx(1.0)
     online = torch.nn.Linear(3, 3)
-    target = make_target(online)
+    target = frozen_copy(online)
     with torch.no_grad():
         online.weight.add_(1.0)
     before = target.weight.clone()
