@@ -1,8 +1,11 @@
 """How every MOSAIC command line ends (``mosaic-data``, ``mosaic-eval``, ``mosaic-experiment``): one contract.
 
 Exit status 0 when the command did its work, 2 on bad input (refused with one line that names the fix, argparse's
-errors included), 1 when the work failed (an expert gave up, a worker died, a stage's command failed) and 130 when
-interrupted (Ctrl-C), as a shell reports a process stopped by SIGINT. Each command says which of its exceptions
+errors included), 1 when the work failed (an expert gave up, a worker died, a stage's command failed), 130 when
+interrupted (Ctrl-C) and 143 when stopped by SIGTERM (``kill PID``, a job scheduler's stop), as a shell reports a
+process ended by those signals. SIGTERM stops a command the way Ctrl-C does (:class:`Terminated`): its workers and
+the command a stage runs are stopped and what finished is kept, instead of the process vanishing and leaving them
+running. Each command says which of its exceptions
 are bad input and which are failures (:class:`ExitContract`); any other exception is a bug and ends with its
 traceback. Standard library only: the command lines import it before their heavy imports.
 """
@@ -10,14 +13,46 @@ traceback. Standard library only: the command lines import it before their heavy
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 SUCCESS = 0
 FAILURE = 1
 BAD_INPUT = 2
 INTERRUPTED = 130
+TERMINATED = 128 + signal.SIGTERM
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread while a command runs: a KeyboardInterrupt, so every clean-up path Ctrl-C
+    takes runs for it too."""
+
+
+def interrupted_status(error: KeyboardInterrupt) -> int:
+    """The exit status of a command stopped by ``error``: 143 for SIGTERM, 130 for Ctrl-C."""
+    return TERMINATED if isinstance(error, Terminated) else INTERRUPTED
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM raises :class:`Terminated` in the main thread. Nothing changes outside the main
+    thread (a handler can only be set there) or when SIGTERM is ignored (the caller's choice)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) == signal.SIG_IGN:
+        yield
+        return
+
+    def stop(signum, frame) -> None:
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class Stopped(Exception):
@@ -47,7 +82,7 @@ class ExitContract:
         if isinstance(error, Stopped):
             return error.code, f"{self.command}: {error.message}"
         if isinstance(error, KeyboardInterrupt):
-            return INTERRUPTED, self.interrupted_line.format(command=self.command)
+            return interrupted_status(error), self.interrupted_line.format(command=self.command)
         if isinstance(error, self.bad_input):
             return BAD_INPUT, self.bad_input_line.format(command=self.command, error=error)
         if isinstance(error, self.failure):
@@ -55,9 +90,11 @@ class ExitContract:
         return None
 
     def run(self, action: Callable[[], int]) -> int:
-        """``action()``'s status; an error the contract covers prints its message on stderr and gives its status."""
+        """``action()``'s status; an error the contract covers prints its message on stderr and gives its status.
+        SIGTERM stops ``action`` as Ctrl-C does."""
         try:
-            return action()
+            with sigterm_as_interrupt():
+                return action()
         except (Exception, KeyboardInterrupt) as error:
             status = self.status_of(error)
             if status is None:

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from mosaic_data.cli_args import action_noise, add_executor_arguments, episode_count, non_negative_int, parse_image_size, parse_int_list, positive_int
-from mosaic_data.exit_status import INTERRUPTED, Stopped
+from mosaic_data.exit_status import Stopped, interrupted_status
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
@@ -35,8 +35,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
     quiet_dataset_writing()  # the merges run in this process
     try:
         report = collect(request, show_progress=not args.quiet)
-    except KeyboardInterrupt:
-        raise Stopped(INTERRUPTED, "interrupted; finished shards are kept: run the same command again to resume") from None
+    except KeyboardInterrupt as stop:
+        raise Stopped(interrupted_status(stop), "interrupted; finished shards are kept: run the same command again to resume") from None
     for outcome in report.datasets:
         print(
             f"{outcome.repo_id}: {outcome.status}, {outcome.episodes} episodes, {outcome.frames} frames, "

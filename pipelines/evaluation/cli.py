@@ -39,7 +39,7 @@ from mosaic_data.cli_args import (  # noqa: E402
     parse_int_list,
     positive_int,
 )
-from mosaic_data.exit_status import BAD_INPUT, FAILURE, INTERRUPTED, ExitContract, Stopped  # noqa: E402
+from mosaic_data.exit_status import BAD_INPUT, FAILURE, ExitContract, Stopped, interrupted_status  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     except (KeyboardInterrupt, Exception) as error:
         kept = _keep_partial(in_plan_order(finished, plan.episodes), len(plan.episodes), error, json_path, report_of)
         if isinstance(error, KeyboardInterrupt):
-            raise Stopped(INTERRUPTED, f"interrupted; {kept}") from None
+            raise Stopped(interrupted_status(error), f"interrupted; {kept}") from None
         if isinstance(error, WorkerDied):
             raise Stopped(FAILURE, f"error: {error}; {kept}; run it again, with fewer --workers if memory is short") from None
         if isinstance(error, (EvaluationError, RayExecutorError)):

@@ -4,6 +4,8 @@ Every stage keeps, under ``DIR/stages/<key>/``, its command line (``command.txt`
 once it has finished, ``done.json``. Running a recipe again skips the finished stages, so a killed or interrupted
 run resumes with the stage it was in: a collection resumes its own shards, a training run resumes from its last
 checkpoint with ``lerobot-train --resume=true`` (or restarts when it had saved none), an evaluation reruns.
+Stopping a recipe (Ctrl-C, or SIGTERM as ``kill`` and job schedulers send) stops the command of its running stage
+too, so no stage goes on writing into the folder after the recipe has ended.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
+
+from mosaic_data.exit_status import Terminated
 
 from .presets import ExperimentError
 
@@ -102,8 +106,9 @@ def run_stage(output_dir: Path, stage: Stage, resume: bool) -> float:
         process = subprocess.Popen([_executable(command[0]), *command[1:]], stdout=log, stderr=subprocess.STDOUT, env=env)
         try:
             returncode = process.wait()
-        except KeyboardInterrupt:  # Ctrl-C reached the child too (same process group): let it stop cleanly
-            process.send_signal(signal.SIGINT)
+        except KeyboardInterrupt as stop:  # Ctrl-C (the child got it too: same process group), or SIGTERM to us alone
+            # The child stops the same way: SIGTERM also ends a child that ignores SIGINT (a background job's does).
+            process.send_signal(signal.SIGTERM if isinstance(stop, Terminated) else signal.SIGINT)
             process.wait()
             raise
     seconds = time.perf_counter() - start

@@ -1,6 +1,6 @@
 """The smoke preset end to end with the real tools: mosaic-data collect/merge, lerobot-train, mosaic-eval.
 
-The fast suite runs the learning recipe (collect, train, evaluate every checkpoint, report) with a kill in its
+The fast suite runs the learning recipe (collect, train, evaluate every checkpoint, report) with a SIGTERM in its
 training stage, a resume that reruns that stage only, and a rerun that skips it all. The fine-tune recipe (a
 novel-task model, fine-tuned and from-scratch runs: eight stages) runs end to end under ``-m slow``; its commands are
 checked in test_plans.py. Both share one data folder, as experiments of one preset may. Every policy type trains and
@@ -37,10 +37,24 @@ def _run(arguments: list[str], **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run([*EXPERIMENT, *arguments], capture_output=True, text=True, timeout=1200, **kwargs)
 
 
-def _kill_in_stage_and_resume(arguments: list[str], output: Path, plan, target) -> None:
-    """Runs the recipe until ``target`` has started and kills the driver and its stage as a lost machine would (no
-    clean-up): exactly the stages before ``target`` are done. Run again, the recipe skips those untouched and
-    resumes ``target`` alone."""
+def _processes_naming(path: Path) -> list[str]:
+    """Command lines of the running processes that name ``path`` (Linux /proc)."""
+    lines = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            line = cmdline.read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:  # the process ended meanwhile
+            continue
+        if str(path) in line:
+            lines.append(line)
+    return lines
+
+
+def _kill_in_stage_and_resume(arguments: list[str], output: Path, plan, target, lost_machine: bool) -> None:
+    """Runs the recipe until ``target`` has started, then stops it: ``lost_machine`` kills the driver and its stage
+    at once (no clean-up); otherwise SIGTERM goes to the driver alone, as `kill PID` or a job scheduler sends it, and
+    the driver must stop the stage's command before it ends (status 143). Either way exactly the stages before
+    ``target`` are done; run again, the recipe skips those untouched and resumes ``target`` alone."""
     driver = subprocess.Popen([*EXPERIMENT, *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               start_new_session=True)
     deadline = time.monotonic() + 900
@@ -49,8 +63,15 @@ def _kill_in_stage_and_resume(arguments: list[str], output: Path, plan, target) 
         assert time.monotonic() < deadline
         time.sleep(0.2)
     time.sleep(2)  # into lerobot-train's start
-    os.killpg(driver.pid, signal.SIGKILL)
-    driver.wait()
+    if lost_machine:
+        os.killpg(driver.pid, signal.SIGKILL)
+        driver.wait()
+    else:
+        driver.send_signal(signal.SIGTERM)
+        said = driver.communicate(timeout=120)[0].decode()
+        assert driver.returncode == 128 + signal.SIGTERM, said[-3000:]
+        assert "interrupted; run the same command again to resume" in said
+        assert _processes_naming(target.output) == []  # the stage's lerobot-train ended with the driver
     finished = {s.key: (stage_folder(output, s) / "done.json").stat().st_mtime for s in plan.stages if is_done(output, s)}
     assert set(finished) == {s.key for s in plan.stages[: plan.stages.index(target)]}
 
@@ -71,7 +92,7 @@ def test_fine_tune_smoke_killed_in_a_stage_resumes_that_stage_only(smoke_data, t
                  *(f"--set={o}" for o in overrides)]
     plan = build_plan("fine-tune", resolve_preset("smoke", overrides), output, smoke_data)
     target = next(s for s in plan.stages if s.key == f"train/fine-tune/door/mosaic/fine-tune-{FINE_TUNE_FRACTION}/seed1")
-    _kill_in_stage_and_resume(arguments, output, plan, target)
+    _kill_in_stage_and_resume(arguments, output, plan, target, lost_machine=True)
     summary = json.loads((output / "results.json").read_text())["recipes"][0]
     curves = {(c["mode"], c["fraction"]): c for c in summary["curves"]}
     assert set(curves) == {("fine-tune", FINE_TUNE_FRACTION), ("scratch", FINE_TUNE_FRACTION)}
@@ -94,7 +115,7 @@ def test_learning_smoke_killed_in_training_resumes_it_reports_each_checkpoint_an
                  *(f"--set={o}" for o in overrides)]
     plan = build_plan("learning", resolve_preset("smoke", overrides), output, smoke_data)
     target = next(s for s in plan.stages if s.key.startswith("train/"))
-    _kill_in_stage_and_resume(arguments, output, plan, target)
+    _kill_in_stage_and_resume(arguments, output, plan, target, lost_machine=False)
     for stage in plan.stages:  # each stage kept its exact command (the dry run's) and its log
         folder = stage_folder(output, stage)
         assert (folder / "command.txt").read_text().strip() == stage.shell_line()
