@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from tests.helpers.cli_errors import one_line_error
+from tests.helpers.processes import command_line
 from tests.helpers.video_damage import drop_last_frames, overwrite_middle
 
 from pipelines.evaluation.cli import main as mosaic_eval
@@ -41,13 +42,6 @@ def _one_line_error(capsys) -> str:
 def _children(pid: int) -> list[int]:
     path = Path(f"/proc/{pid}/task/{pid}/children")
     return [int(child) for child in path.read_text().split()] if path.exists() else []
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
 
 
 def _alive(pid: int) -> bool:
@@ -80,11 +74,11 @@ def test_a_killed_worker_stops_the_evaluation_and_keeps_the_finished_episodes(tm
             assert time.monotonic() < started + 300, "no episode finished within 300 s"
             time.sleep(0.1)
         first_episode_in = time.monotonic() - started
-        workers = [pid for pid in _children(process.pid) if "spawn_main" in _cmdline(pid) and _alive(pid)]
+        workers = [pid for pid in _children(process.pid) if "spawn_main" in command_line(pid) and _alive(pid)]
         assert len(workers) == 2, (
-            [(_cmdline(pid), _alive(pid)) for pid in _children(process.pid)], process.poll(), log.read_bytes()[-2000:]
+            [(command_line(pid), _alive(pid)) for pid in _children(process.pid)], process.poll(), log.read_bytes()[-2000:]
         )
-        killed = (workers[0], _cmdline(workers[0]))
+        killed = (workers[0], command_line(workers[0]))
         os.kill(workers[0], signal.SIGKILL)  # as the out-of-memory killer does
         killed_at = time.monotonic()
         while _alive(workers[0]) and time.monotonic() < killed_at + 30:

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from tests.helpers.processes import running_command_lines
 
 from pipelines.evaluation.cli import main as mosaic_eval
 
@@ -27,15 +28,7 @@ def _episodes(path: Path) -> list[dict]:
 
 def _running_episode_workers() -> list[int]:
     """Ray worker processes running an episode now (Ray titles a worker by the task it runs)."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if (entry / "cmdline").read_bytes().startswith(b"ray::run_episode_task"):
-                    pids.append(int(entry.name))
-            except OSError:
-                continue
-    return pids
+    return [pid for pid, line in running_command_lines().items() if line.startswith("ray::run_episode_task")]
 
 
 def test_ray_results_equal_the_local_ones_after_a_killed_worker(tmp_path, tiny_checkpoint):

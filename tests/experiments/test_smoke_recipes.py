@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
+from tests.helpers.processes import running_command_lines
 
 from mosaic_data.constants import POLICY_TYPES
 from pipelines.experiments.presets import resolve_preset
@@ -35,19 +36,6 @@ def smoke_data(tmp_path_factory) -> Path:
 
 def _run(arguments: list[str], **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run([*EXPERIMENT, *arguments], capture_output=True, text=True, timeout=1200, **kwargs)
-
-
-def _processes_naming(path: Path) -> list[str]:
-    """Command lines of the running processes that name ``path`` (Linux /proc)."""
-    lines = []
-    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
-        try:
-            line = cmdline.read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:  # the process ended meanwhile
-            continue
-        if str(path) in line:
-            lines.append(line)
-    return lines
 
 
 def _kill_in_stage_and_resume(arguments: list[str], output: Path, plan, target, lost_machine: bool) -> None:
@@ -71,7 +59,8 @@ def _kill_in_stage_and_resume(arguments: list[str], output: Path, plan, target, 
         said = driver.communicate(timeout=120)[0].decode()
         assert driver.returncode == 128 + signal.SIGTERM, said[-3000:]
         assert "interrupted; run the same command again to resume" in said
-        assert _processes_naming(target.output) == []  # the stage's lerobot-train ended with the driver
+        left = [line for line in running_command_lines().values() if str(target.output) in line]
+        assert left == []  # the stage's lerobot-train ended with the driver
     finished = {s.key: (stage_folder(output, s) / "done.json").stat().st_mtime for s in plan.stages if is_done(output, s)}
     assert set(finished) == {s.key for s in plan.stages[: plan.stages.index(target)]}
 

@@ -1,0 +1,19 @@
+"""Running processes as Linux's /proc shows them: the tests that stop commands check which processes are left."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def command_line(pid: int) -> str:
+    """The process's command line, arguments joined by spaces; "" once it has ended."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def running_command_lines() -> dict[int, str]:
+    """pid -> command line of every process running now (those that end while being read are left out)."""
+    lines = {int(entry.name): command_line(int(entry.name)) for entry in Path("/proc").iterdir() if entry.name.isdigit()}
+    return {pid: line for pid, line in lines.items() if line}
