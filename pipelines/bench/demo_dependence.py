@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mosaic_data.constants import ACTION_KEY, CAMERA_KEY
+from mosaic_data.constants import ACTION_KEY, CAMERA_KEY, STATE_KEY
 from mosaic_data.tasks.spec import TASK_SPECS
 
 PARTS = 10
@@ -32,23 +32,22 @@ VARIATION_KEY = "variation"
 
 
 def load_policy(path: Path):
-    """(policy, postprocessor) of a lerobot-train checkpoint, loaded by mosaic-eval's own agent."""
+    """mosaic-eval's own agent of a lerobot-train checkpoint: its policy, preprocessor and postprocessor."""
     from pipelines.evaluation.agents import AgentSpec, PolicyAgent
 
-    agent = PolicyAgent.from_spec(AgentSpec(kind="policy", label="policy", path=str(path)))
-    return agent.policy, agent.postprocessor
+    return PolicyAgent.from_spec(AgentSpec(kind="policy", label="policy", path=str(path)))
 
 
-def episodes_of(dataset, variation: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """(frames (T, 3, H, W) float, actions (T, A)) of the first ``count`` episodes of ``variation`` (the datasets'
-    per-frame ``variation`` feature)."""
+def episodes_of(dataset, variation: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """(frames (T, 3, H, W) float, robot states (T, S), actions (T, A)) of the first ``count`` episodes of
+    ``variation`` (the datasets' per-frame ``variation`` feature)."""
     found = []
     for episode in range(dataset.meta.total_episodes):
         start, end = dataset.meta.episodes[episode]["dataset_from_index"], dataset.meta.episodes[episode]["dataset_to_index"]
         if int(dataset.hf_dataset[start][VARIATION_KEY]) != variation:
             continue
         items = [dataset[i] for i in range(start, end)]
-        found.append((torch.stack([item[CAMERA_KEY] for item in items]), torch.stack([item[ACTION_KEY] for item in items])))
+        found.append(tuple(torch.stack([item[key] for item in items]) for key in (CAMERA_KEY, STATE_KEY, ACTION_KEY)))
         if len(found) == count:
             break
     if not found:
@@ -57,22 +56,27 @@ def episodes_of(dataset, variation: int, count: int) -> list[tuple[torch.Tensor,
 
 
 @torch.no_grad()
-def first_targets(policy, postprocessor, demo: torch.Tensor, frames: torch.Tensor) -> np.ndarray:
-    """(T, 3) unnormalised position targets the policy gives first for each frame, conditioned on ``demo``."""
+def first_targets(policy_agent, demo: torch.Tensor, frames: torch.Tensor, states: torch.Tensor) -> np.ndarray:
+    """(T, 3) unnormalised position targets the policy gives first for each frame and robot state, conditioned on
+    ``demo``; frame and state go through the checkpoint's own preprocessor, as in an evaluation."""
+    policy = policy_agent.policy
     policy.reset()
     policy.set_demo(demo)
-    chunks = [policy.predict_action_chunk({CAMERA_KEY: frame[None].to(policy.device)})[:, 0] for frame in frames]
-    return postprocessor(torch.cat(chunks))[:, :3].numpy()
+    chunks = []
+    for frame, state in zip(frames, states, strict=True):
+        batch = policy_agent.preprocessor({CAMERA_KEY: frame[None], STATE_KEY: state[None], "task": [""]})
+        chunks.append(policy.predict_action_chunk(batch)[:, 0])
+    return policy_agent.postprocessor(torch.cat(chunks))[:, :3].numpy()
 
 
-def dependence_table(policy, postprocessor, agent, demos_right, demos_wrong, every: int) -> np.ndarray:
+def dependence_table(policy_agent, agent, demos_right, demos_wrong, every: int) -> np.ndarray:
     """(PARTS, 3): per tenth of the episodes, mean distance expert-right, expert-wrong, right-wrong (metres)."""
     sums, counts = np.zeros((PARTS, 3)), np.zeros(PARTS)
-    for frames, actions in agent:
+    for frames, states, actions in agent:
         index = np.arange(0, len(frames), every)
         expert = actions[index, :3].numpy()
-        right = np.mean([first_targets(policy, postprocessor, d, frames[index]) for d in demos_right], axis=0)
-        wrong = np.mean([first_targets(policy, postprocessor, d, frames[index]) for d in demos_wrong], axis=0)
+        right = np.mean([first_targets(policy_agent, d, frames[index], states[index]) for d in demos_right], axis=0)
+        wrong = np.mean([first_targets(policy_agent, d, frames[index], states[index]) for d in demos_wrong], axis=0)
         part = np.minimum(index * PARTS // len(frames), PARTS - 1)
         distances = np.stack(
             [np.linalg.norm(expert - right, axis=1), np.linalg.norm(expert - wrong, axis=1), np.linalg.norm(right - wrong, axis=1)],
@@ -115,11 +119,11 @@ def main(argv: list[str] | None = None) -> None:
     if len(pair) != 2 or not all(0 <= v < len(variations) for v in pair):
         raise SystemExit(f"demo_dependence: --variations takes two indices of {args.task}'s 0..{len(variations) - 1}.")
     datasets = {robot: open_dataset("demo_dependence", args.data_dir, args.task, robot) for robot in ("panda", "sawyer")}
-    policy, postprocessor = load_policy(args.policy_path)
-    demos = {v: [frames for frames, _ in episodes_of(datasets["sawyer"], v, args.demos)] for v in pair}
+    policy_agent = load_policy(args.policy_path)
+    demos = {v: [episode[0] for episode in episodes_of(datasets["sawyer"], v, args.demos)] for v in pair}
     for shown, other in (pair, pair[::-1]):
         agent = episodes_of(datasets["panda"], shown, args.episodes)
-        table = dependence_table(policy, postprocessor, agent, demos[shown], demos[other], args.every)
+        table = dependence_table(policy_agent, agent, demos[shown], demos[other], args.every)
         print(f"\nagent frames of {shown} ({variations[shown].description}); wrong demonstration: {other} "
               f"({variations[other].description}); {len(agent)} episodes, {args.demos} demonstrations each")
         print("| part of the episode | expert - policy, right demo (cm) | expert - policy, wrong demo (cm) | right - wrong (cm) |")

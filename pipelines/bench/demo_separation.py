@@ -102,13 +102,13 @@ def main(argv: list[str] | None = None) -> None:
     if len(variations) < 2 or not all(0 <= v < count for v in variations):
         raise SystemExit(f"demo_separation: --variations takes two or more of {args.task}'s 0..{count - 1}.")
     dataset = open_dataset("demo_separation", args.data_dir, args.task, "sawyer")
-    policy, _ = load_policy(args.policy_path)
+    policy = load_policy(args.policy_path).policy
     if getattr(policy, "name", None) != "mosaic":
         raise SystemExit(
             f"demo_separation: {args.policy_path} is a {getattr(policy, 'name', type(policy).__name__)} policy; it reads "
             "MOSAIC's demonstration stream: give a --policy.type=mosaic checkpoint."
         )
-    train_demos = {v: [frames for frames, _ in episodes_of(dataset, v, args.demos)] for v in variations}
+    train_demos = {v: [episode[0] for episode in episodes_of(dataset, v, args.demos)] for v in variations}
     rows = separation_table(policy, args.task, train_demos, args.fresh)
     shown = {v: len(demos) for v, demos in train_demos.items()}
     print(f"\n{args.task}, variations {variations}: centroids of {min(shown.values())}-{max(shown.values())} training "
