@@ -23,9 +23,10 @@ class MosaicConfig(DemoConditionedConfig):
     (0.5 s at the default time scale). `attention_pattern="full"` is T-OSIL's causal pattern inside MOSAIC (the
     attention ablation), acting with a memory of past frames. `demo_summary` adds the MLP baseline's ordered
     demonstration vector beside the attention, `variation_loss_weight` a supervised contrastive loss that groups
-    a batch's demonstrations by variation (neither in the paper). The EMA target's momentum reaches 1 over the
-    run's `--steps` unless `ema_total_steps` says otherwise (fine-tuning a checkpoint starts a new schedule,
-    `--resume` continues it).
+    a batch's demonstrations by variation, `wrong_demo_loss_weight` a loss that the recorded actions be likelier
+    with the sample's own demonstration than with another variation's (none of the three in the paper). The EMA
+    target's momentum reaches 1 over the run's `--steps` unless `ema_total_steps` says otherwise (fine-tuning a
+    checkpoint starts a new schedule, `--resume` continues it).
     """
 
     # Attention: 2 layers single-task, 3 multi-task (paper).
@@ -49,6 +50,10 @@ class MosaicConfig(DemoConditionedConfig):
     # demonstrations of one variation (LeRobot task string) and apart the others' (0: off, the paper; it uses
     # contrastive_dim, contrastive_hidden_dim and contrastive_temperature).
     variation_loss_weight: float = 0.0
+    # This project: weight of a loss asking every observation frame which of two demonstrations explains its
+    # recorded actions, its own or another variation's from the batch (0: off, the paper): it makes the action, not
+    # only the demonstration stream, depend on the demonstration (mosaic_policy/mosaic/wrong_demonstration.py).
+    wrong_demo_loss_weight: float = 0.0
 
     # Weight of the contrastive loss(es) (paper: 1).
     contrastive_loss_weight: float = 1.0
@@ -90,8 +95,9 @@ class MosaicConfig(DemoConditionedConfig):
         for name in ("n_attention_layers", "n_attention_heads", "summary_hidden_dim", "summary_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
-        if self.variation_loss_weight < 0:
-            raise ValueError(f"`variation_loss_weight` must be >= 0 (0: off), got {self.variation_loss_weight}.")
+        for name in ("variation_loss_weight", "wrong_demo_loss_weight"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"`{name}` must be >= 0 (0: off), got {getattr(self, name)}.")
         if self.attention_temperature <= 0:
             raise ValueError(f"`attention_temperature` must be > 0, got {self.attention_temperature}.")
         if not 0.0 <= self.ema_momentum <= 1.0:

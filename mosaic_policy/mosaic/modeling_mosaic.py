@@ -6,7 +6,9 @@ per-frame embedding (with `demo_summary`, joined with an ordered summary vector 
 discretised logistic mixture over actions (behaviour cloning). An inverse-dynamics head
 predicts the action between consecutive observation embeddings, and a temporal contrastive loss against an EMA
 target encoder shapes the representation before and/or after attention; with `variation_loss_weight`, a
-supervised contrastive loss groups the batch's attended demonstrations by variation.
+supervised contrastive loss groups the batch's attended demonstrations by variation, and with
+`wrong_demo_loss_weight` the recorded actions must be likelier with the sample's own demonstration than with
+another variation's (:mod:`.wrong_demonstration`).
 
 The trunk, embedding and heads are those of :class:`~mosaic_policy.common.demo_conditioned_model.DemoConditionedModel`
 (the same in every row of the table); this module builds the attention and the contrastive modules.
@@ -22,7 +24,13 @@ from torch import Tensor, nn
 
 from ..common.attention import NonLocalAttentionStack, spatio_temporal_encoding
 from ..common.demo_conditioned_model import DemoConditionedModel
-from ..common.demo_conditioned_policy import DemoConditionedPolicy, TrainingSample, expand_to_batch, masked_mean
+from ..common.demo_conditioned_policy import (
+    DemoConditionedPolicy,
+    TrainingSample,
+    chunk_nll,
+    expand_to_batch,
+    masked_mean,
+)
 from ..common.demo_summary import context_mlp, fuse_with_context, fusion_layer
 from ..common.discretized_logistic import DiscretizedLogisticMixture
 from ..common.frame_features import FrameMemory, trunk_features
@@ -31,6 +39,7 @@ from ..common.weight_average import ema_update, frozen_copy
 from .configuration_mosaic import MosaicConfig
 from .contrastive import TemporalContrastiveModule, ema_momentum, positive_indices
 from .variation_contrastive import nearest_is_same_variation, variation_contrastive_loss, variation_projector
+from .wrong_demonstration import other_variation_partners, wrong_demonstration_loss
 
 DEFAULT_EMA_STEPS = 100_000
 """EMA schedule length outside a lerobot-train run that tells it (LeRobot's default --steps)."""
@@ -107,10 +116,22 @@ class MosaicModel(DemoConditionedModel):
         both = trunk_features(trunk, torch.cat([demo, obs], dim=1))
         d = demo.shape[1]
         demo_f, obs_f = both[:, :, :d], both[:, :, d:]
-        demo_out, obs_out, weights = attention(
-            demo_f + self.demo_position, obs_f + self.obs_position_for(obs.shape[1]), return_weights
-        )
-        return {"demo_pre": demo_f, "obs_pre": obs_f, "demo_post": demo_out, "obs_post": obs_out, "weights": weights}
+        demo_out, cache = attention.encode_demo(demo_f + self.demo_position)
+        obs_in = obs_f + self.obs_position_for(obs.shape[1])
+        obs_out, weights = self.attend_observations(attention, obs_in, cache, return_weights)
+        return {
+            "demo_pre": demo_f, "obs_pre": obs_f, "demo_post": demo_out, "obs_post": obs_out, "weights": weights,
+            "obs_in": obs_in, "cache": cache,
+        }
+
+    def attend_observations(
+        self, attention: nn.Module, obs_in: Tensor, cache: list[tuple[Tensor, Tensor]], return_weights: bool = False
+    ) -> tuple[Tensor, list[Tensor]]:
+        """Position-encoded observation features (B, C, T, h, w) through every attention layer, given each layer's
+        demo keys/values: the observation stream of :meth:`encode` (no weights with the full pattern)."""
+        if self.config.attention_pattern == "full":
+            return attention.attend_obs_causal(obs_in, cache), []
+        return attention.attend_obs(obs_in, cache, return_weights)
 
     def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
         return self.embeddings_of(self.encode(trunk, self.attention, demo, obs))
@@ -197,14 +218,21 @@ class MosaicPolicy(DemoConditionedPolicy):
         cfg = self.config
         view1_demo, view1_obs = self.views(sample)
         online = self.model.encode(self.model.trunk, self.model.attention, view1_demo, view1_obs)
-        per_sample, info = self.imitation_losses(self.model.embeddings_of(online), sample)
+        summary = self.model.summarize_demo(online["demo_post"])
+        embeddings = self.model.conditioned_embeddings(online["obs_post"], summary)
+        per_sample, info = self.imitation_losses(embeddings, sample)
         if cfg.contrastive != "off" and self.training:
             contrastive = self._contrastive_loss(online, sample.demo, sample.obs, sample.valid)
             per_sample = per_sample + cfg.contrastive_loss_weight * contrastive
             info["contrastive_loss"] = contrastive.mean().item()
         tasks = sample.batch.get("task")
+        tasks = list(tasks) if tasks is not None else None
+        partners = other_variation_partners(tasks) if cfg.wrong_demo_loss_weight > 0 and tasks is not None else None
+        if partners is not None and self.training:
+            wrong = self._wrong_demonstration_loss(online, summary, embeddings, partners.to(embeddings.device), sample)
+            per_sample = per_sample + cfg.wrong_demo_loss_weight * wrong
+            info["wrong_demo_loss"] = wrong.mean().item()
         if self.model.variation_projector is not None and self.training and tasks is not None:
-            tasks = list(tasks)
             projections = self.model.variation_projector(self.model.frame_embeddings(online["demo_post"]).flatten(1))
             variation = variation_contrastive_loss(projections, tasks, cfg.contrastive_temperature)
             per_sample = per_sample + cfg.variation_loss_weight * variation
@@ -213,6 +241,21 @@ class MosaicPolicy(DemoConditionedPolicy):
             if nearest is not None:  # a batch where no two samples share a variation has nothing to tell
                 info["variation_nearest"] = nearest
         return per_sample, info
+
+    def _wrong_demonstration_loss(
+        self, online: dict, summary: Tensor | None, embeddings: Tensor, partners: Tensor, sample: TrainingSample
+    ) -> Tensor:
+        """Per-sample :func:`wrong_demonstration_loss`: the observation frames attend to (and are joined with the
+        summary of) the demonstration of sample ``partners[i]``, another variation's, and the recorded chunks'
+        likelihoods with the right and the wrong demonstration are compared frame by frame."""
+        cache = [(keys[partners], values[partners]) for keys, values in online["cache"]]
+        obs_wrong, _ = self.model.attend_observations(self.model.attention, online["obs_in"], cache)
+        wrong_embeddings = self.model.conditioned_embeddings(obs_wrong, None if summary is None else summary[partners])
+        nll = [
+            (chunk_nll(self.model.action_distribution(e, sample.state), sample.chunks) * sample.chunk_valid).sum(-1)
+            for e in (embeddings, wrong_embeddings)
+        ]
+        return wrong_demonstration_loss(*nll, sample.chunk_valid.any(-1))
 
     def _contrastive_loss(self, online: dict, demo: Tensor, obs: Tensor, valid: Tensor) -> Tensor:
         """Per-sample mean over its frames of the contrastive losses before and/or after attention."""

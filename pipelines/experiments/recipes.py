@@ -65,6 +65,9 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
         "this project: demonstrations grouped by variation", ("--policy.variation_loss_weight=20",),
     ),
     "hand_relative": ("this project: position targets relative to the hand", ("--policy.hand_relative_targets=true",)),
+    "wrong_demo": (
+        "this project: actions a wrong demonstration must not explain", ("--policy.wrong_demo_loss_weight=10",),
+    ),
     "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
