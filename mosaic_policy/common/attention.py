@@ -229,9 +229,16 @@ class NonLocalAttentionStack(nn.Module):
             obs = layer.forward_obs_causal(obs, k, v)
         return obs
 
+    def attend_observations(
+        self, obs: Tensor, cache: list[tuple[Tensor, Tensor]], return_weights: bool = False
+    ) -> tuple[Tensor, list[Tensor]]:
+        """Observation frames (B, C, T, h, w) through every layer with this stack's pattern, given each layer's demo
+        keys/values (from :meth:`encode_demo`, this demonstration's or another's); no weights with the full one."""
+        if self.pattern == "full":
+            return self.attend_obs_causal(obs, cache), []
+        return self.attend_obs(obs, cache, return_weights)
+
     def forward(self, demo: Tensor, obs: Tensor, return_weights: bool = False) -> tuple[Tensor, Tensor, list[Tensor]]:
         demo_out, cache = self.encode_demo(demo)
-        if self.pattern == "full":
-            return demo_out, self.attend_obs_causal(obs, cache), []
-        obs_out, weights = self.attend_obs(obs, cache, return_weights)
+        obs_out, weights = self.attend_observations(obs, cache, return_weights)
         return demo_out, obs_out, weights

@@ -118,20 +118,11 @@ class MosaicModel(DemoConditionedModel):
         demo_f, obs_f = both[:, :, :d], both[:, :, d:]
         demo_out, cache = attention.encode_demo(demo_f + self.demo_position)
         obs_in = obs_f + self.obs_position_for(obs.shape[1])
-        obs_out, weights = self.attend_observations(attention, obs_in, cache, return_weights)
+        obs_out, weights = attention.attend_observations(obs_in, cache, return_weights)
         return {
             "demo_pre": demo_f, "obs_pre": obs_f, "demo_post": demo_out, "obs_post": obs_out, "weights": weights,
             "obs_in": obs_in, "cache": cache,
         }
-
-    def attend_observations(
-        self, attention: nn.Module, obs_in: Tensor, cache: list[tuple[Tensor, Tensor]], return_weights: bool = False
-    ) -> tuple[Tensor, list[Tensor]]:
-        """Position-encoded observation features (B, C, T, h, w) through every attention layer, given each layer's
-        demo keys/values: the observation stream of :meth:`encode` (no weights with the full pattern)."""
-        if self.config.attention_pattern == "full":
-            return attention.attend_obs_causal(obs_in, cache), []
-        return attention.attend_obs(obs_in, cache, return_weights)
 
     def observation_embeddings(self, trunk: nn.Module, demo: Tensor, obs: Tensor) -> Tensor:
         return self.embeddings_of(self.encode(trunk, self.attention, demo, obs))
@@ -227,8 +218,9 @@ class MosaicPolicy(DemoConditionedPolicy):
             info["contrastive_loss"] = contrastive.mean().item()
         tasks = sample.batch.get("task")
         tasks = list(tasks) if tasks is not None else None
-        partners = other_variation_partners(tasks) if cfg.wrong_demo_loss_weight > 0 and tasks is not None else None
-        if partners is not None and self.training:
+        wanted = cfg.wrong_demo_loss_weight > 0 and self.training and tasks is not None
+        partners = other_variation_partners(tasks) if wanted else None
+        if partners is not None:
             wrong = self._wrong_demonstration_loss(online, summary, embeddings, partners.to(embeddings.device), sample)
             per_sample = per_sample + cfg.wrong_demo_loss_weight * wrong
             info["wrong_demo_loss"] = wrong.mean().item()
@@ -249,7 +241,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         summary of) the demonstration of sample ``partners[i]``, another variation's, and the recorded chunks'
         likelihoods with the right and the wrong demonstration are compared frame by frame."""
         cache = [(keys[partners], values[partners]) for keys, values in online["cache"]]
-        obs_wrong, _ = self.model.attend_observations(self.model.attention, online["obs_in"], cache)
+        obs_wrong, _ = self.model.attention.attend_observations(online["obs_in"], cache)
         wrong_embeddings = self.model.conditioned_embeddings(obs_wrong, None if summary is None else summary[partners])
         nll = [
             (chunk_nll(self.model.action_distribution(e, sample.state), sample.chunks) * sample.chunk_valid).sum(-1)

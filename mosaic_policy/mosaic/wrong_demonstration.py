@@ -18,6 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..common.demo_conditioned_policy import masked_mean
+
 
 def other_variation_partners(variations: Sequence[str]) -> Tensor | None:
     """(B,) index of a sample of another variation for every sample: the next one in the batch (cyclically) whose
@@ -36,6 +38,4 @@ def wrong_demonstration_loss(nll_right: Tensor, nll_wrong: Tensor, valid: Tensor
     """Per-sample loss (B,): the mean over valid frames of softplus(nll_right - nll_wrong), both (B, T) negative
     log-likelihoods of a frame's recorded action chunk, with the sample's demonstration and with another
     variation's; ``valid`` (B, T) marks the frames that have actions."""
-    per_frame = F.softplus(nll_right - nll_wrong)
-    mask = valid.to(per_frame.dtype)
-    return (per_frame * mask).sum(-1) / mask.sum(-1).clamp(min=1.0)
+    return masked_mean(F.softplus(nll_right - nll_wrong), valid)

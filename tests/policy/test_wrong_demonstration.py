@@ -46,8 +46,8 @@ def test_the_wrong_likelihoods_are_the_batchs_own_given_the_partners_demonstrati
     """The logged loss equals the loss recomputed from two plain forward passes, the batch as it is and the batch
     with each sample's demonstration replaced by its partner's (dropout, augmentation and the other losses off so
     that both passes are deterministic), after the loss alone has trained the policy until the demonstrations
-    change the likelihoods (at the start they are all log 2, whatever the partners); off by default and with weight 0 nothing is logged; its gradient reaches
-    the attention and the summary."""
+    change the likelihoods (at the start they are all log 2, whatever the partners); off by default and with weight
+    0 nothing is logged; its gradient reaches the attention and the summary."""
     options = dict(
         attention_pattern=attention_pattern, demo_summary=True, summary_hidden_dim=32, summary_dim=16, augment=False,
         attention_dropout=0.0, contrastive="off", bc_loss_weight=0.0, inverse_loss_weight=0.0,
