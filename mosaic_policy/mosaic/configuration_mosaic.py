@@ -10,6 +10,8 @@ CONTRASTIVE_PLACEMENTS = ("off", "before", "after", "both")
 POSITIVE_MODES = ("window", "fixed", "same")
 CONTRASTIVE_OBJECTIVES = ("infonce", "byol")
 ATTENTION_PATTERNS = ("mosaic", "full")
+# Wrong demonstration of the wrong-demonstration loss (mosaic_policy/mosaic/wrong_demonstration.py).
+WRONG_DEMO_PARTNERS = ("next", "nearest")
 
 
 @PreTrainedConfig.register_subclass("mosaic")
@@ -54,6 +56,9 @@ class MosaicConfig(DemoConditionedConfig):
     # recorded actions, its own or another variation's from the batch (0: off, the paper): it makes the action, not
     # only the demonstration stream, depend on the demonstration (mosaic_policy/mosaic/wrong_demonstration.py).
     wrong_demo_loss_weight: float = 0.0
+    # Which wrong demonstration: "next" (the next batch sample of another variation) or "nearest" (the other
+    # variation's demonstration the model finds most alike; on press_button a measured loss).
+    wrong_demo_partner: str = "next"
 
     # Weight of the contrastive loss(es) (paper: 1).
     contrastive_loss_weight: float = 1.0
@@ -85,6 +90,7 @@ class MosaicConfig(DemoConditionedConfig):
             "contrastive_positive": POSITIVE_MODES,
             "contrastive_objective": CONTRASTIVE_OBJECTIVES,
             "attention_pattern": ATTENTION_PATTERNS,
+            "wrong_demo_partner": WRONG_DEMO_PARTNERS,
         }
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

@@ -39,7 +39,11 @@ from ..common.weight_average import ema_update, frozen_copy
 from .configuration_mosaic import MosaicConfig
 from .contrastive import TemporalContrastiveModule, ema_momentum, positive_indices
 from .variation_contrastive import nearest_is_same_variation, variation_contrastive_loss, variation_projector
-from .wrong_demonstration import other_variation_partners, wrong_demonstration_loss
+from .wrong_demonstration import (
+    nearest_other_variation_partners,
+    other_variation_partners,
+    wrong_demonstration_loss,
+)
 
 DEFAULT_EMA_STEPS = 100_000
 """EMA schedule length outside a lerobot-train run that tells it (LeRobot's default --steps)."""
@@ -219,9 +223,9 @@ class MosaicPolicy(DemoConditionedPolicy):
         tasks = sample.batch.get("task")
         tasks = list(tasks) if tasks is not None else None
         wanted = cfg.wrong_demo_loss_weight > 0 and self.training and tasks is not None
-        partners = other_variation_partners(tasks) if wanted else None
+        partners = self._wrong_demonstration_partners(online, tasks) if wanted else None
         if partners is not None:
-            wrong = self._wrong_demonstration_loss(online, summary, embeddings, partners.to(embeddings.device), sample)
+            wrong = self._wrong_demonstration_loss(online, summary, embeddings, partners, sample)
             per_sample = per_sample + cfg.wrong_demo_loss_weight * wrong
             info["wrong_demo_loss"] = wrong.mean().item()
         if self.model.variation_projector is not None and self.training and tasks is not None:
@@ -233,6 +237,14 @@ class MosaicPolicy(DemoConditionedPolicy):
             if nearest is not None:  # a batch where no two samples share a variation has nothing to tell
                 info["variation_nearest"] = nearest
         return per_sample, info
+
+    def _wrong_demonstration_partners(self, online: dict, tasks: list[str]) -> Tensor | None:
+        """Every sample's wrong demonstration for the wrong-demonstration loss (`wrong_demo_partner`)."""
+        if self.config.wrong_demo_partner == "nearest":
+            demo_vectors = self.model.frame_embeddings(online["demo_post"]).flatten(1)
+            return nearest_other_variation_partners(demo_vectors, tasks)
+        partners = other_variation_partners(tasks)
+        return None if partners is None else partners.to(online["demo_post"].device)
 
     def _wrong_demonstration_loss(
         self, online: dict, summary: Tensor | None, embeddings: Tensor, partners: Tensor, sample: TrainingSample

@@ -10,6 +10,13 @@ cross-entropy of choosing the right one by the actions' likelihoods. It is near 
 makes the actions a few nats more likely than the wrong one, so it only acts where the demonstration does not yet
 change the action; at evaluation the demonstration always matches, so what the policy does with a wrong one
 matters only through this gradient.
+
+Which wrong demonstration: the next sample of another variation in the batch ("next"), or the one whose
+demonstration the model finds most alike ("nearest", by the cosine of the attended demonstration's frame
+embeddings). A partner taken in batch order is often a variation far from the sample's (the other press_button
+machine), whose likelihoods a small shift of the target already separates; the nearest one is meant to be the
+variation the policy confuses (the neighbouring button). Compared only with it, the policy never learns the coarse
+difference: on press_button "nearest" is a measured loss (README).
 """
 
 from collections.abc import Sequence
@@ -32,6 +39,20 @@ def other_variation_partners(variations: Sequence[str]) -> Tensor | None:
             return None
         partners.append(partner)
     return torch.tensor(partners, dtype=torch.long)
+
+
+def nearest_other_variation_partners(vectors: Tensor, variations: Sequence[str]) -> Tensor | None:
+    """(B,) index, for every sample, of the sample of another variation whose vector (B, D) has the largest cosine
+    with its own. None when some sample has no partner (one variation fills the batch)."""
+    if len(variations) != vectors.shape[0]:
+        raise ValueError(f"{vectors.shape[0]} vectors but {len(variations)} variations: one per sample.")
+    labels = {name: i for i, name in enumerate(dict.fromkeys(variations))}
+    ids = torch.tensor([labels[v] for v in variations], device=vectors.device)
+    same = ids[:, None] == ids[None, :]
+    if same.all(dim=1).any():
+        return None
+    unit = F.normalize(vectors.detach().float(), dim=-1)
+    return (unit @ unit.T).masked_fill(same, float("-inf")).argmax(dim=1)
 
 
 def wrong_demonstration_loss(nll_right: Tensor, nll_wrong: Tensor, valid: Tensor) -> Tensor:

@@ -68,6 +68,10 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     "wrong_demo": (
         "this project: actions a wrong demonstration must not explain", ("--policy.wrong_demo_loss_weight=10",),
     ),
+    "wrong_demo_nearest": (
+        "this project: actions a wrong demonstration must not explain",
+        ("--policy.wrong_demo_loss_weight=10", "--policy.wrong_demo_partner=nearest"),
+    ),
     "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window

@@ -12,7 +12,12 @@ from tests.helpers.policy import random_batch, small_config
 
 from mosaic_policy.common.demo_conditioned_policy import chunk_nll
 from mosaic_policy.mosaic.modeling_mosaic import MosaicPolicy
-from mosaic_policy.mosaic.wrong_demonstration import other_variation_partners, wrong_demonstration_loss
+from mosaic_policy.mosaic import modeling_mosaic
+from mosaic_policy.mosaic.wrong_demonstration import (
+    nearest_other_variation_partners,
+    other_variation_partners,
+    wrong_demonstration_loss,
+)
 
 
 def test_every_sample_is_paired_with_the_next_sample_of_another_variation():
@@ -20,6 +25,17 @@ def test_every_sample_is_paired_with_the_next_sample_of_another_variation():
     assert other_variation_partners(["a", "a", "b", "c"]).tolist() == [2, 2, 3, 0]
     assert other_variation_partners(["a", "a", "a"]) is None  # nothing to tell apart
     assert other_variation_partners(["a"]) is None
+
+
+def test_the_nearest_partner_is_the_most_alike_demonstration_of_another_variation():
+    """Buttons 0 and 1 of one machine lie close, button 5 of the other machine far: each button's nearest other
+    variation is its neighbour, never its own variation however alike; one variation alone has no partner."""
+    vectors = torch.tensor([[1.0, 0.0], [1.0, 0.1], [0.9, 0.3], [0.0, 1.0], [0.1, 1.0]])
+    assert nearest_other_variation_partners(vectors, ["b0", "b0", "b1", "b5", "b5"]).tolist() == [2, 2, 1, 2, 2]
+    assert nearest_other_variation_partners(vectors * 7.0, ["b0", "b1", "b1", "b5", "b5"]).tolist() == [1, 0, 0, 2, 2]
+    assert nearest_other_variation_partners(vectors, ["b0"] * 5) is None
+    with pytest.raises(ValueError, match="one per sample"):
+        nearest_other_variation_partners(vectors, ["b0", "b1"])
 
 
 def test_the_loss_of_known_likelihoods():
@@ -87,6 +103,34 @@ def test_the_wrong_likelihoods_are_the_batchs_own_given_the_partners_demonstrati
     assert "wrong_demo_loss" not in policy.forward(batch)[1]
 
 
-def test_a_negative_weight_names_the_fix():
+def test_the_nearest_partners_come_from_the_attended_demonstrations(monkeypatch):
+    """With wrong_demo_partner=nearest the partners are chosen on the frame embeddings of the batch's own attended
+    demonstrations, and the loss is logged."""
+    seen = []
+
+    def spy(vectors, variations):
+        seen.append((vectors.detach().clone(), list(variations)))
+        return nearest_other_variation_partners(vectors, variations)
+
+    monkeypatch.setattr(modeling_mosaic, "nearest_other_variation_partners", spy)
+    options = dict(augment=False, attention_dropout=0.0, contrastive="off", demo_summary=True, summary_dim=16)
+    torch.manual_seed(0)
+    policy = MosaicPolicy(small_config(wrong_demo_loss_weight=1.0, wrong_demo_partner="nearest", **options)).train()
+    batch = random_batch(policy.config, batch_size=4)
+    batch["task"] = ["a", "b", "c", "a"]
+    _, info = policy.forward(batch)
+    assert 0.0 < info["wrong_demo_loss"] < 10.0
+    with torch.no_grad():
+        sample = policy.training_sample(batch)
+        online = policy.model.encode(policy.model.trunk, policy.model.attention, sample.demo, sample.obs)
+        expected = policy.model.frame_embeddings(online["demo_post"]).flatten(1)
+    (vectors, variations), = seen
+    assert variations == batch["task"]
+    torch.testing.assert_close(vectors, expected)
+
+
+def test_a_negative_weight_or_an_unknown_partner_names_the_fix():
     with pytest.raises(ValueError, match="wrong_demo_loss_weight` must be >= 0"):
         small_config(wrong_demo_loss_weight=-1.0)
+    with pytest.raises(ValueError, match="--policy.wrong_demo_partner=next"):
+        small_config(wrong_demo_partner="hardest")
