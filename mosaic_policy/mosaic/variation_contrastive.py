@@ -33,7 +33,7 @@ def variation_contrastive_loss(projections: Tensor, variations: Sequence[str], t
     logits = (z @ z.T) / temperature
     itself = torch.eye(projections.shape[0], dtype=torch.bool, device=projections.device)
     log_prob = logits - torch.logsumexp(logits.masked_fill(itself, float("-inf")), dim=1, keepdim=True)
-    positive = _partners(variations, projections.device)
+    positive = same_variation_pairs(variations, projections.device)
     n_positive = positive.sum(1)
     loss = -(log_prob * positive).sum(1) / n_positive.clamp(min=1)
     return torch.where(n_positive > 0, loss, torch.zeros_like(loss))
@@ -44,7 +44,7 @@ def nearest_is_same_variation(projections: Tensor, variations: Sequence[str]) ->
     variation another sample of the batch shows (None if none): 1 when the projections tell the variations apart.
     The loss's own scale depends on the batch (its floor is the log of each sample's number of positives); this
     figure reads the same whatever the batch."""
-    positive = _partners(variations, projections.device)
+    positive = same_variation_pairs(variations, projections.device)
     has_positive = positive.any(1)
     if not has_positive.any():
         return None
@@ -53,7 +53,7 @@ def nearest_is_same_variation(projections: Tensor, variations: Sequence[str]) ->
     return positive[torch.arange(len(nearest)), nearest][has_positive].float().mean().item()
 
 
-def _partners(variations: Sequence[str], device: torch.device) -> Tensor:
+def same_variation_pairs(variations: Sequence[str], device: torch.device) -> Tensor:
     """(B, B) bool: sample j shows sample i's variation, j != i."""
     codes = {name: i for i, name in enumerate(dict.fromkeys(variations))}
     labels = torch.tensor([codes[name] for name in variations], device=device)

@@ -26,6 +26,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..common.demo_conditioned_policy import masked_mean
+from .variation_contrastive import same_variation_pairs
 
 
 def other_variation_partners(variations: Sequence[str]) -> Tensor | None:
@@ -46,9 +47,7 @@ def nearest_other_variation_partners(vectors: Tensor, variations: Sequence[str])
     with its own. None when some sample has no partner (one variation fills the batch)."""
     if len(variations) != vectors.shape[0]:
         raise ValueError(f"{vectors.shape[0]} vectors but {len(variations)} variations: one per sample.")
-    labels = {name: i for i, name in enumerate(dict.fromkeys(variations))}
-    ids = torch.tensor([labels[v] for v in variations], device=vectors.device)
-    same = ids[:, None] == ids[None, :]
+    same = same_variation_pairs(variations, vectors.device).fill_diagonal_(True)
     if same.all(dim=1).any():
         return None
     unit = F.normalize(vectors.detach().float(), dim=-1)
