@@ -229,7 +229,7 @@ class MosaicPolicy(DemoConditionedPolicy):
             per_sample = per_sample + cfg.wrong_demo_loss_weight * wrong
             info["wrong_demo_loss"] = wrong.mean().item()
         if self.model.variation_projector is not None and self.training and tasks is not None:
-            projections = self.model.variation_projector(self.model.frame_embeddings(online["demo_post"]).flatten(1))
+            projections = self.model.variation_projector(self._demo_vectors(online))
             variation = variation_contrastive_loss(projections, tasks, cfg.contrastive_temperature)
             per_sample = per_sample + cfg.variation_loss_weight * variation
             info["variation_loss"] = variation.mean().item()
@@ -241,10 +241,16 @@ class MosaicPolicy(DemoConditionedPolicy):
     def _wrong_demonstration_partners(self, online: dict, tasks: list[str]) -> Tensor | None:
         """Every sample's wrong demonstration for the wrong-demonstration loss (`wrong_demo_partner`)."""
         if self.config.wrong_demo_partner == "nearest":
-            demo_vectors = self.model.frame_embeddings(online["demo_post"]).flatten(1)
-            return nearest_other_variation_partners(demo_vectors, tasks)
+            return nearest_other_variation_partners(self._demo_vectors(online), tasks)
         partners = other_variation_partners(tasks)
         return None if partners is None else partners.to(online["demo_post"].device)
+
+    def _demo_vectors(self, online: dict) -> Tensor:
+        """(B, D * embed_dim) the attended demonstration's frame embeddings in order, computed once per step for
+        the variation projector and the nearest wrong-demonstration partner."""
+        if "demo_vectors" not in online:
+            online["demo_vectors"] = self.model.frame_embeddings(online["demo_post"]).flatten(1)
+        return online["demo_vectors"]
 
     def _wrong_demonstration_loss(
         self, online: dict, summary: Tensor | None, embeddings: Tensor, partners: Tensor, sample: TrainingSample
