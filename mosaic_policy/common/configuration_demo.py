@@ -94,7 +94,9 @@ class DemoConditionedConfig(PreTrainedConfig):
     # (observation.state x, y, z), converted back to absolute targets inside the policy: one frame then needs the
     # next move's direction, not the hand's exact place in the image. Rotation and gripper stay absolute.
     hand_relative_targets: bool = False
-    # Logistic mixture components per action dimension.
+    # Logistic mixture components per action dimension. With several, the head can give each variation's target a
+    # component weighted alike whatever the demonstration and act with the heaviest (the same variation every time);
+    # with 1 only the demonstration can move the target.
     n_mixtures: int = 3
     # Discretisation bins per action dimension over the normalised range [-1, 1].
     action_bins: int = 256
@@ -103,6 +105,9 @@ class DemoConditionedConfig(PreTrainedConfig):
     # Inference: query the policy every control step and average the targets its chunks give for that step, weight
     # exp(-coeff * i) for the i-th oldest (ACT's temporal ensembling); unset: hand out each chunk's targets in turn.
     temporal_ensemble_coeff: float | None = None
+    # Inference: hand out only the first n targets of each chunk, then query the policy again (LeRobot's ACT and
+    # Diffusion name it so); unset: the whole chunk. Fewer steps per query react sooner to where the hand is.
+    n_action_steps: int | None = None
     # Keep an exponential moving average of the weights with this decay (e.g. 0.995: about the last 200 steps;
     # warmed up over the first steps) and act with it; unset: act with the trained weights. The average is saved in
     # the checkpoint beside them (twice the file), so resuming goes on training the trained weights.
@@ -175,6 +180,16 @@ class DemoConditionedConfig(PreTrainedConfig):
         for name in ("train_obs_frames", "eval_obs_frames", "frame_stride", "action_chunk", "n_mixtures", "embed_dim"):
             if getattr(self, name) < 1:
                 raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}.")
+        if self.n_action_steps is not None and not 1 <= self.n_action_steps <= self.action_chunk:
+            raise ValueError(
+                f"`n_action_steps` must be between 1 and `action_chunk` ({self.action_chunk}), got "
+                f"{self.n_action_steps}: e.g. --policy.n_action_steps={max(1, self.action_chunk // 2)}."
+            )
+        if self.n_action_steps is not None and self.temporal_ensemble_coeff is not None:
+            raise ValueError(
+                "`n_action_steps` and `temporal_ensemble_coeff` both set how often the policy is queried (temporal "
+                "ensembling queries it every step): pass one of them."
+            )
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(
                 f"`lr_schedule` must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}: "

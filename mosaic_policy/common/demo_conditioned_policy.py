@@ -245,7 +245,8 @@ class DemoConditionedPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """Normalised action (B, action_dim) for this control step; the postprocessor unnormalises it.
 
-        The policy runs on every `action_chunk`-th call and hands out its chunk's targets in order in between.
+        The policy runs on every `n_action_steps`-th call (default `action_chunk`) and hands out the first
+        `n_action_steps` targets of its chunk in order in between.
         """
         return self._next_action(batch)
 
@@ -253,9 +254,14 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         if self.config.temporal_ensemble_coeff is not None:
             return self._ensembled_action(batch)
         if not self._action_queue:
-            chunk = self._act(batch)
-            self._action_queue.extend(chunk.transpose(0, 1))  # (B, action_dim) per step
+            self.queue_chunk(self._act(batch))
         return self._action_queue.popleft()
+
+    def queue_chunk(self, chunk: Tensor) -> None:
+        """Queue the targets of a new chunk (B, action_chunk, action_dim) that are handed out before the next query:
+        the first `n_action_steps` (default all), one (B, action_dim) per control step."""
+        executed = chunk[:, : self.config.n_action_steps or self.config.action_chunk]
+        self._action_queue.extend(executed.transpose(0, 1))
 
     def _ensembled_action(self, batch: dict[str, Tensor]) -> Tensor:
         """ACT's temporal ensembling: a new chunk every step; this step's target is the weighted mean of what every

@@ -178,7 +178,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         `policy.model.feature_shape` gives (C, h, w). The full pattern returns no weights.
         """
         if not self._action_queue:
-            self._action_queue.extend(self._act(batch, return_weights=True).transpose(0, 1))
+            self.queue_chunk(self._act(batch, return_weights=True))
         return self._action_queue.popleft(), self._last_weights
 
     def _act(self, batch: dict[str, Tensor], return_weights: bool = False) -> Tensor:

@@ -96,6 +96,16 @@ def bench_parser(doc: str, data_dir_help: str) -> argparse.ArgumentParser:
     return parser
 
 
+def demonstrated_variations(bench: str, task: str, text: str) -> list[int]:
+    """``--variations`` of the benches that compare demonstrations: comma-separated indices (empty: all of the
+    task's), two or more, each in range; otherwise one line naming the range."""
+    count = len(TASK_SPECS[task].variations)
+    variations = [int(v) for v in text.split(",") if v] or list(range(count))
+    if len(variations) < 2 or not all(0 <= v < count for v in variations):
+        raise SystemExit(f"{bench}: --variations takes two or more of {task}'s 0..{count - 1}.")
+    return variations
+
+
 def open_dataset(bench: str, data_dir: Path, task: str, robot: str):
     """The LeRobot dataset DATA_DIR/mosaic/<task>_<robot>, or one line naming the command that collects it."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset

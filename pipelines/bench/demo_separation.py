@@ -20,9 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from mosaic_data.tasks.spec import TASK_SPECS
-
-from .demo_dependence import bench_parser, episodes_of, load_policy, open_dataset
+from .demo_dependence import bench_parser, demonstrated_variations, episodes_of, load_policy, open_dataset
 
 
 @torch.no_grad()
@@ -97,10 +95,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fresh", type=int, default=10, help="new expert demonstrations per variation")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    count = len(TASK_SPECS[args.task].variations)
-    variations = [int(v) for v in args.variations.split(",") if v] or list(range(count))
-    if len(variations) < 2 or not all(0 <= v < count for v in variations):
-        raise SystemExit(f"demo_separation: --variations takes two or more of {args.task}'s 0..{count - 1}.")
+    variations = demonstrated_variations("demo_separation", args.task, args.variations)
     dataset = open_dataset("demo_separation", args.data_dir, args.task, "sawyer")
     policy = load_policy(args.policy_path).policy
     if getattr(policy, "name", None) != "mosaic":

@@ -60,6 +60,7 @@ class AgentSpec:
     record_attention: bool = False
     takes_demo: bool = True  # a policy with `set_demo`; one without acts blind to the demonstration
     expert_variation: int | None = None  # the expert pursues this variation, not the episode's (a demo-blind agent)
+    policy_options: tuple[tuple[str, Any], ...] = ()  # (field, value) set on the checkpoint's config (--policy.X)
 
     @property
     def needs_demo(self) -> bool:
@@ -206,6 +207,29 @@ def policy_class(checkpoint: Path, policy_type: str) -> type:
         ) from None
 
 
+def policy_config(checkpoint: Path, options: dict[str, Any]):
+    """The checkpoint's LeRobot config with ``options`` (inference options such as ``n_action_steps``) set, checked
+    by the config class itself, as ``lerobot-eval --policy.X=V`` does."""
+    import dataclasses
+
+    from lerobot.configs.policies import PreTrainedConfig
+
+    register_policy_types()
+    config = PreTrainedConfig.from_pretrained(checkpoint)
+    if not options:
+        return config
+    fields = {f.name for f in dataclasses.fields(config) if f.init}
+    for name in options:
+        if name not in fields:
+            raise EvaluationError(
+                f"--policy.{name} is not an option of {config.type!r} policies ({checkpoint}): leave it out for them"
+            )
+    try:
+        return dataclasses.replace(config, **options)
+    except (ValueError, TypeError, NotImplementedError) as error:  # LeRobot's ACT refuses with NotImplementedError
+        raise EvaluationError(f"{checkpoint}: {' '.join(str(error).split())}") from None
+
+
 def takes_demo(cls: type) -> bool:
     """Whether a policy class is conditioned on a demonstration (MOSAIC's `set_demo`)."""
     return callable(getattr(cls, "set_demo", None))
@@ -287,12 +311,10 @@ class PolicyAgent:
 
     @classmethod
     def _from_checkpoint(cls, spec: AgentSpec) -> PolicyAgent:
-        from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import make_pre_post_processors
 
         path = resolve_checkpoint(spec.path)
-        register_policy_types()
-        config = PreTrainedConfig.from_pretrained(path)
+        config = policy_config(path, dict(spec.policy_options))
         config.device = "cpu" if not torch.cuda.is_available() else config.device
         if getattr(config, "pretrained_backbone_weights", None):
             config.pretrained_backbone_weights = None  # the checkpoint holds the trained backbone: no ImageNet download

@@ -14,6 +14,31 @@ BASELINES: tuple[str, ...] = ("expert", "untrained")
 """Sanity rows the evaluation can produce without a checkpoint."""
 
 
+POLICY_OPTIONS: dict[str, str] = {
+    "n_action_steps": "targets executed per query, the first of each predicted chunk (MOSAIC and baselines: 1.."
+    "action_chunk; ACT: 1..chunk_size)",
+    "temporal_ensemble_coeff": "query every step and average the chunks that cover it, weight exp(-coeff * age) (ACT's "
+    "temporal ensembling)",
+    "action_sampling": "mode or sample: how a target is drawn from the head's distribution (MOSAIC and baselines)",
+    "act_with_weight_average": "true or false: act with the checkpoint's averaged weights or its trained ones",
+}
+"""Inference options ``mosaic-eval --policy.NAME=VALUE`` sets on every checkpoint's config (as lerobot-eval's
+``--policy.NAME``): the same trained weights rolled out another way, so a comparison holds the training run fixed."""
+
+
+def parse_bool(text: str) -> bool:
+    if text.lower() in ("true", "1", "yes"):
+        return True
+    if text.lower() in ("false", "0", "no"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+def policy_options(args: argparse.Namespace) -> dict[str, object]:
+    """The ``--policy.NAME`` inference options given on the command line (name -> value)."""
+    return {name: getattr(args, f"policy_{name}") for name in POLICY_OPTIONS if getattr(args, f"policy_{name}", None) is not None}
+
+
 POLL_S = 0.5
 """How often an executor (local worker processes or Ray) looks for finished episodes and dead workers while it waits."""
 

@@ -22,12 +22,13 @@ from .agents import (
     check_checkpoint_files,
     checkpoint_image_hw,
     policy_class,
+    policy_config,
     read_config,
     resolve_checkpoint,
     takes_demo,
 )
 from .demo_sources import DatasetDemoSource, DemoSourceSpec
-from .options import check_arguments
+from .options import check_arguments, policy_options
 from .rollouts import EpisodeSpec
 from .seeds import SEED_RULE, episode_seed, episode_seeds
 
@@ -67,6 +68,11 @@ class EvaluationPlan:
         agents: list[AgentSpec] = []
         groups: dict[str, dict[int, str]] = {}
         n_demo_frames = N_DEMO_FRAMES
+        options = policy_options(args)
+        if options and not args.policy_paths:
+            raise EvaluationError(
+                f"--policy.{next(iter(options))} sets an option of a checkpoint: pass --policy.path=<checkpoint> with it"
+            )
         for path in args.policy_paths:
             checkpoint = resolve_checkpoint(path)
             config = read_config(checkpoint)
@@ -74,7 +80,12 @@ class EvaluationPlan:
             with_demo = takes_demo(policy_class(checkpoint, config["type"]))
             check_checkpoint_files(checkpoint)  # after the fit checks: those need only config.json
             n_demo_frames = config.get("n_demo_frames", n_demo_frames) if with_demo else n_demo_frames
-            spec = AgentSpec("policy", str(path), str(checkpoint), image_hw, record, takes_demo=with_demo)
+            if options:
+                policy_config(checkpoint, options)  # a bad value is reported here, before any worker starts
+            spec = AgentSpec(
+                "policy", str(path), str(checkpoint), image_hw, record, takes_demo=with_demo,
+                policy_options=tuple(options.items()),
+            )
             groups.setdefault(config["type"], {})[len(agents)] = str(path)
             agents.append(spec)
         default_hw = args.image_size or (agents[0].image_hw if agents else (IMAGE_HEIGHT, IMAGE_WIDTH))

@@ -73,6 +73,7 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("--policy.wrong_demo_loss_weight=10", "--policy.wrong_demo_partner=nearest"),
     ),
     "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
+    "one_mixture": ("this project: one logistic per action dimension", ("--policy.n_mixtures=1",)),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
 positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride, constant learning rate)."""

@@ -204,3 +204,41 @@ def test_demonstrations_from_a_dataset(tmp_path, capsys, tiny_checkpoint):
     small = write_demo_dataset(tmp_path / "small", "door", [1], height=32, width=56)
     code, _ = _run(tmp_path, *common[:-1], str(small), "--variations", "1")
     assert code == 2 and "collect the demonstrations at the policy's image size" in capsys.readouterr().err
+
+
+def test_policy_options_roll_out_the_checkpoint_another_way(tmp_path, tiny_checkpoint):
+    from pipelines.evaluation.agents import AgentSpec, PolicyAgent
+
+    code, output = _run(
+        tmp_path, f"--policy.path={tiny_checkpoint}", "--policy.n_action_steps=2", "--task", "door", "--variations", "1",
+        "--episodes-per-variation", "1", "--workers", "1", "--max-steps", "5",
+    )
+    assert code == 0
+    (agent,) = json.loads(output.read_text())["settings"]["agents"]
+    assert agent["policy_options"] == [["n_action_steps", 2]]  # what was rolled out is on record
+    spec = AgentSpec("policy", "mosaic", str(tiny_checkpoint), policy_options=(("n_action_steps", 2),))
+    policy = PolicyAgent.from_spec(spec).policy
+    assert policy.config.n_action_steps == 2 and policy.config.action_chunk > 2
+
+
+@pytest.mark.parametrize(
+    "option, act, message",
+    [
+        ("--policy.n_action_steps=99", False, "`n_action_steps` must be between 1 and `action_chunk`"),
+        ("--policy.action_sampling=best", False, "`action_sampling` must be one of"),
+        ("--policy.action_sampling=sample", True, "--policy.action_sampling is not an option of 'act' policies"),
+        ("--policy.temporal_ensemble_coeff=0.01", True, "`n_action_steps` must be 1 when using temporal ensembling"),
+        ("--policy.act_with_weight_average=maybe", False, "expected true or false, got 'maybe'"),
+    ],
+)
+def test_a_bad_policy_option_is_one_line(tmp_path, capsys, tiny_checkpoint, tiny_act_checkpoint, option, act, message):
+    checkpoint = tiny_act_checkpoint if act else tiny_checkpoint
+    code, output = _run(tmp_path, f"--policy.path={checkpoint}", option, "--task", "door")
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and message in error and "\n" not in error
+    assert not output.exists()
+
+
+def test_a_policy_option_without_a_checkpoint_is_refused(tmp_path, capsys):
+    code, _ = _run(tmp_path, "--baseline", "expert", "--policy.n_action_steps=2", "--task", "door")
+    assert code == 2 and "pass --policy.path=<checkpoint> with it" in capsys.readouterr().err

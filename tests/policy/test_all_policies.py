@@ -202,6 +202,35 @@ def test_the_demo_separation_bench_places_fresh_demonstrations_by_the_training_o
         demo_separation.main(["--policy.path", checkpoint, "--data-dir", str(tmp_path / "none")])
 
 
+def test_the_demo_mixture_bench_measures_how_far_the_demonstration_moves_the_head(trained_checkpoints, door_datasets, tmp_path, capsys):
+    """`python -m pipelines.bench.demo_mixture` on lerobot-train checkpoints and LeRobot datasets: a row per tenth of
+    the episode with the heaviest component's weight (in (1/M, 1]), the weights' total variation over the
+    demonstrations (in [0, 1]) and the last targets' spread in cm; a bad variation is one line."""
+    from pipelines.bench import demo_mixture
+
+    agent_root, demo_root = door_datasets
+    (tmp_path / "mosaic").mkdir()
+    (tmp_path / "mosaic" / "door_panda").symlink_to(agent_root)
+    (tmp_path / "mosaic" / "door_sawyer").symlink_to(demo_root)
+    for policy_type in ("mosaic", "mlp_osil"):
+        demo_mixture.main(["--policy.path", str(trained_checkpoints[policy_type]), "--data-dir", str(tmp_path),
+                           "--variations", "0,1", "--episodes", "1", "--every", "3"])
+        rows = [line.strip("|").split("|") for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "%" in line]
+        assert len(rows) == demo_mixture.PARTS, policy_type
+        values = np.array([[float(value) for value in row[1:]] for row in rows if row[1].strip() != "-"])
+        assert len(values) >= 3 and values.shape[1] == 3, policy_type  # a tenth without a sampled frame reads "-"
+        n_mixtures = _config_value(trained_checkpoints[policy_type], "n_mixtures")
+        assert ((values[:, 0] >= 1 / n_mixtures - 1e-6) & (values[:, 0] <= 1)).all()
+        assert ((values[:, 1] >= 0) & (values[:, 1] <= 1)).all() and (values[:, 2] >= 0).all()
+
+    with pytest.raises(SystemExit, match="--shown takes one of door's 4 variations"):
+        demo_mixture.main(["--policy.path", str(trained_checkpoints["mosaic"]), "--data-dir", str(tmp_path), "--shown", "7"])
+
+
+def _config_value(checkpoint, name):
+    return json.loads((Path(checkpoint) / "config.json").read_text())[name]
+
+
 def test_mosaic_eval_puts_every_policy_side_by_side_with_its_confusion_matrix(trained_checkpoints, tmp_path):
     output = tmp_path / "eval" / "results.json"
     paths = [f"--policy.path={checkpoint}" for checkpoint in trained_checkpoints.values()]

@@ -51,3 +51,27 @@ def test_temporal_ensembling_averages_every_chunk_that_covers_the_step():
     assert actions[4] == pytest.approx(expected)
     policy.reset()
     assert len(policy._action_queue) == 0  # a new episode forgets the old chunks
+
+
+def test_n_action_steps_hands_out_the_first_targets_of_each_chunk_then_queries_again():
+    policy = _policy(action_chunk=4, n_action_steps=2).eval()
+    policy.set_demo(torch.rand(policy.config.n_demo_frames, 3, HEIGHT, WIDTH))
+    chunks = [torch.full((1, 4, 7), 10.0 * q) + torch.arange(4.0)[None, :, None] for q in range(3)]
+    queries = iter(chunks)
+    policy._act = lambda batch: next(queries)
+    observation = {IMAGE_KEY: torch.rand(1, 3, HEIGHT, WIDTH)}
+    actions = [policy.select_action(observation)[0, 0].item() for _ in range(6)]
+    assert actions == [0.0, 1.0, 10.0, 11.0, 20.0, 21.0]  # a new chunk every 2 steps, its targets 0 and 1
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"action_chunk": 4, "n_action_steps": 5}, "between 1 and `action_chunk` \\(4\\)"),
+        ({"action_chunk": 4, "n_action_steps": 0}, "between 1 and `action_chunk`"),
+        ({"action_chunk": 4, "n_action_steps": 2, "temporal_ensemble_coeff": 0.01}, "pass one of them"),
+    ],
+)
+def test_n_action_steps_out_of_range_names_the_fix(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        small_config(**overrides)
