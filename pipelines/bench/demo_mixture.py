@@ -34,18 +34,28 @@ POSITION_DIMS = 3
 
 
 @torch.no_grad()
-def frame_mixtures(policy_agent, demos: list[torch.Tensor], frame: torch.Tensor, state: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    """For one agent frame and each demonstration: the position dimensions' component weights (D, chunk, 3, M) and
-    the unnormalised position target of the chunk's last step (D, 3), as the policy acts on them."""
-    policy = policy_agent.policy
-    weights, targets = [], []
+def demo_contexts(policy, demos: list[torch.Tensor]) -> list:
+    """What `set_demo` computes from each demonstration, once per demonstration (the policy keeps its inference
+    trunk from the last call)."""
+    contexts = []
     for demo in demos:
         policy.reset()
         policy.set_demo(demo)
-        batch = policy_agent.preprocessor({CAMERA_KEY: frame[None], STATE_KEY: state[None], "task": [""]})
-        image, robot_state = policy.current_inputs(batch)
-        distribution = policy.chunk_distribution(image, robot_state, policy._context)
-        chunk, action_dim = policy.config.action_chunk, policy.action_dim
+        contexts.append(policy._context)
+    return contexts
+
+
+@torch.no_grad()
+def frame_mixtures(policy_agent, contexts: list, frame: torch.Tensor, state: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """For one agent frame and each demonstration's context: the position dimensions' component weights
+    (D, chunk, 3, M) and the unnormalised position target of the chunk's last step (D, 3), as the policy acts on them."""
+    policy = policy_agent.policy
+    batch = policy_agent.preprocessor({CAMERA_KEY: frame[None], STATE_KEY: state[None], "task": [""]})
+    image, robot_state = policy.current_inputs(batch)
+    chunk, action_dim = policy.config.action_chunk, policy.action_dim
+    weights, targets = [], []
+    for context in contexts:
+        distribution = policy.chunk_distribution(image, robot_state, context)
         probs = torch.softmax(distribution.logit_probs, dim=-1).reshape(1, chunk, action_dim, -1)
         weights.append(probs[0, :, :POSITION_DIMS].numpy())
         last = policy.actions_of(distribution, robot_state)[:, -1]
@@ -57,10 +67,11 @@ def mixture_table(policy_agent, agent_episodes, demos: list[torch.Tensor], every
     """(PARTS, 3): per tenth of the episodes, the heaviest component's mean weight, the mean total variation of the
     weights from their mean over the demonstrations, the mean distance (m) of the last targets from their mean (NaN
     where no frame falls in that tenth)."""
+    contexts = demo_contexts(policy_agent.policy, demos)
     sums, counts = np.zeros((PARTS, 3)), np.zeros(PARTS)
     for frames, states, _ in agent_episodes:
         for index in range(0, len(frames), every):
-            weights, targets = frame_mixtures(policy_agent, demos, frames[index], states[index])
+            weights, targets = frame_mixtures(policy_agent, contexts, frames[index], states[index])
             heaviest = weights.max(-1).mean()
             shift = 0.5 * np.abs(weights - weights.mean(0, keepdims=True)).sum(-1).mean()
             spread = np.linalg.norm(targets - targets.mean(0, keepdims=True), axis=1).mean()

@@ -7,23 +7,13 @@ import them from here, so there is one definition and the help costs no heavy im
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 
+from mosaic_data.cli_args import positive_int
 from mosaic_data.constants import EVAL_BASE_SEED  # noqa: F401  (mosaic-eval's default --seed; standard library only)
 
 BASELINES: tuple[str, ...] = ("expert", "untrained")
 """Sanity rows the evaluation can produce without a checkpoint."""
-
-
-POLICY_OPTIONS: dict[str, str] = {
-    "n_action_steps": "targets executed per query, the first of each predicted chunk (MOSAIC and baselines: 1.."
-    "action_chunk; ACT: 1..chunk_size)",
-    "temporal_ensemble_coeff": "query every step and average the chunks that cover it, weight exp(-coeff * age) (ACT's "
-    "temporal ensembling)",
-    "action_sampling": "mode or sample: how a target is drawn from the head's distribution (MOSAIC and baselines)",
-    "act_with_weight_average": "true or false: act with the checkpoint's averaged weights or its trained ones",
-}
-"""Inference options ``mosaic-eval --policy.NAME=VALUE`` sets on every checkpoint's config (as lerobot-eval's
-``--policy.NAME``): the same trained weights rolled out another way, so a comparison holds the training run fixed."""
 
 
 def parse_bool(text: str) -> bool:
@@ -32,6 +22,19 @@ def parse_bool(text: str) -> bool:
     if text.lower() in ("false", "0", "no"):
         return False
     raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+POLICY_OPTIONS: dict[str, tuple[Callable[[str], object], str]] = {
+    "n_action_steps": (positive_int, "targets executed per query, the first of each predicted chunk (MOSAIC and "
+                       "baselines: 1..action_chunk; ACT: 1..chunk_size)"),
+    "temporal_ensemble_coeff": (float, "query every step and average the chunks that cover it, weight exp(-coeff * "
+                                "age) (ACT's temporal ensembling)"),
+    "action_sampling": (str, "mode or sample: how a target is drawn from the head's distribution (MOSAIC and baselines)"),
+    "act_with_weight_average": (parse_bool, "true or false: act with the checkpoint's averaged weights or its trained ones"),
+}
+"""Inference options ``mosaic-eval --policy.NAME=VALUE`` sets on every checkpoint's config (as lerobot-eval's
+``--policy.NAME``): name -> (argument type, help). The same trained weights rolled out another way, so a comparison
+holds the training run fixed."""
 
 
 def policy_options(args: argparse.Namespace) -> dict[str, object]:
