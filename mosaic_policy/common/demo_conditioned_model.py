@@ -83,9 +83,22 @@ class DemoConditionedModel(nn.Module):
         (no demonstration context)."""
         return self.frame_embeddings(trunk_features(trunk, frames))
 
-    def action_distribution(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
-        """The action head on embeddings (..., embed_dim); with `use_state` the state (..., state_dim) is
-        appended, else ignored (None allowed)."""
+    def action_distribution(
+        self, embeddings: Tensor, state: Tensor | None, mixture_logits: Tensor | None = None
+    ) -> DiscretizedLogisticMixture:
+        """The action head on embeddings (B, ..., embed_dim); with `use_state` the state (B, ..., state_dim) is
+        appended, else ignored (None allowed). ``mixture_logits`` (B, action_chunk * A, n_mixtures), when given,
+        replace the head's own mixture weights for every frame of a sample (weights set by something other than
+        the frame, e.g. the demonstration)."""
+        distribution = self._head(embeddings, state)
+        if mixture_logits is not None:
+            logits = distribution.logit_probs
+            shape = (logits.shape[0],) + (1,) * (logits.dim() - 3) + logits.shape[-2:]
+            distribution.logit_probs = mixture_logits.reshape(shape).expand_as(logits)
+        return distribution
+
+    def _head(self, embeddings: Tensor, state: Tensor | None) -> DiscretizedLogisticMixture:
+        """The action head's own output on the embeddings (and the state the config names)."""
         if self.state_dim:
             if state is None:
                 raise ValueError("use_state is on but the batch has no observation.state.")

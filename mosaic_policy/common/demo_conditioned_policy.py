@@ -410,11 +410,16 @@ class DemoConditionedPolicy(PreTrainedPolicy):
         nll = chunk_nll(distribution, sample.chunks)  # (B, T, chunk)
         return masked_mean(nll.flatten(1), sample.chunk_valid.flatten(1)) * self.config.action_chunk
 
-    def imitation_losses(self, embeddings: Tensor, sample: TrainingSample) -> tuple[Tensor, dict[str, float]]:
+    def imitation_losses(
+        self, embeddings: Tensor, sample: TrainingSample, distribution: DiscretizedLogisticMixture | None = None
+    ) -> tuple[Tensor, dict[str, float]]:
         """The weighted behaviour-cloning and inverse-dynamics losses (B,) of the observation frames' embeddings
-        (B, T, embed_dim), and their means to log."""
+        (B, T, embed_dim), and their means to log. ``distribution``: the action head's output on them, when the
+        policy builds it with more than the embeddings (default: the head on the embeddings and the state)."""
         cfg = self.config
-        bc = self.bc_loss(self.model.action_distribution(embeddings, sample.state), sample)
+        if distribution is None:
+            distribution = self.model.action_distribution(embeddings, sample.state)
+        bc = self.bc_loss(distribution, sample)
         inverse = self.inverse_loss(embeddings, sample)
         per_sample = cfg.bc_loss_weight * bc + cfg.inverse_loss_weight * inverse
         return per_sample, {"bc_loss": bc.mean().item(), "inverse_loss": inverse.mean().item()}

@@ -12,6 +12,8 @@ CONTRASTIVE_OBJECTIVES = ("infonce", "byol")
 ATTENTION_PATTERNS = ("mosaic", "full")
 # Wrong demonstration of the wrong-demonstration loss (mosaic_policy/mosaic/wrong_demonstration.py).
 WRONG_DEMO_PARTNERS = ("next", "nearest")
+# What sets the action head's mixture weights: the frame's embedding (the paper) or the demonstration summary alone.
+MIXTURE_WEIGHTS = ("frame", "demo")
 
 
 @PreTrainedConfig.register_subclass("mosaic")
@@ -59,6 +61,11 @@ class MosaicConfig(DemoConditionedConfig):
     # Which wrong demonstration: "next" (the next batch sample of another variation) or "nearest" (the other
     # variation's demonstration the model finds most alike; on press_button a measured loss).
     wrong_demo_partner: str = "next"
+    # This project: what sets the weights of the action head's logistic mixtures. "frame" (the paper): the head reads
+    # them off each frame's embedding, like the means, so a frame can weight every variation's target alike whatever
+    # the demonstration and act with the heaviest. "demo": a linear layer of the demonstration summary alone (needs
+    # demo_summary), the same for the whole episode: the demonstration picks a component, the frame moves them.
+    mixture_weights: str = "frame"
 
     # Weight of the contrastive loss(es) (paper: 1).
     contrastive_loss_weight: float = 1.0
@@ -91,6 +98,7 @@ class MosaicConfig(DemoConditionedConfig):
             "contrastive_objective": CONTRASTIVE_OBJECTIVES,
             "attention_pattern": ATTENTION_PATTERNS,
             "wrong_demo_partner": WRONG_DEMO_PARTNERS,
+            "mixture_weights": MIXTURE_WEIGHTS,
         }
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
@@ -104,6 +112,10 @@ class MosaicConfig(DemoConditionedConfig):
         for name in ("variation_loss_weight", "wrong_demo_loss_weight"):
             if getattr(self, name) < 0:
                 raise ValueError(f"`{name}` must be >= 0 (0: off), got {getattr(self, name)}.")
+        if self.mixture_weights == "demo" and not self.demo_summary:
+            raise ValueError(
+                "`mixture_weights=demo` reads the demonstration summary: add --policy.demo_summary=true."
+            )
         if self.attention_temperature <= 0:
             raise ValueError(f"`attention_temperature` must be > 0, got {self.attention_temperature}.")
         if not 0.0 <= self.ema_momentum <= 1.0:

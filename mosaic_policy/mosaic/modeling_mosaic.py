@@ -73,6 +73,9 @@ class MosaicModel(DemoConditionedModel):
             demo_dim = config.n_demo_frames * config.embed_dim
             self.variation_projector = variation_projector(demo_dim, config.contrastive_hidden_dim, config.contrastive_dim)
         d = config.n_demo_frames
+        self.mixture_gate = None
+        if config.mixture_weights == "demo":
+            self.mixture_gate = nn.Linear(config.summary_dim, action_dim * config.action_chunk * config.n_mixtures)
         self.register_buffer("demo_position", spatio_temporal_encoding(channels, list(range(d)), h, w), persistent=False)
         # Every observation frame has the temporal code "current frame" (index n_demo_frames), whatever T is.
         self.register_buffer("obs_position", spatio_temporal_encoding(channels, [d], h, w), persistent=False)
@@ -101,6 +104,19 @@ class MosaicModel(DemoConditionedModel):
         """(B, C, T, h, w) attended observation features and the demo summary (or None) -> (B, T, embed_dim)."""
         embeddings = self.frame_embeddings(obs_post)
         return embeddings if summary is None else fuse_with_context(self.summary_fuse, embeddings, summary)
+
+    def mixture_logits(self, summary: Tensor | None) -> Tensor | None:
+        """(B, action_chunk * A, n_mixtures) mixture weights (logits) from the demonstration summary with
+        `mixture_weights="demo"`; None when the frame's embedding sets them (the paper)."""
+        if self.mixture_gate is None:
+            return None
+        return self.mixture_gate(summary).reshape(summary.shape[0], -1, self.config.n_mixtures)
+
+    def head_distribution(
+        self, embeddings: Tensor, state: Tensor | None, summary: Tensor | None
+    ) -> DiscretizedLogisticMixture:
+        """The action distribution of observation embeddings (B, ..., embed_dim) given the demonstration summary."""
+        return self.action_distribution(embeddings, state, self.mixture_logits(summary))
 
     def embeddings_of(self, encoded: dict[str, Any]) -> Tensor:
         """What the heads read, from the output of :meth:`encode`."""
@@ -204,8 +220,9 @@ class MosaicPolicy(DemoConditionedPolicy):
         else:
             obs = features + model.obs_position
             obs_out, self._last_weights = model.attention.attend_obs(obs, cache, return_weights)
-        embeddings = model.conditioned_embeddings(obs_out, context.get("summary"))[:, 0]
-        return model.action_distribution(embeddings, state)
+        summary = context.get("summary")
+        embeddings = model.conditioned_embeddings(obs_out, summary)[:, 0]
+        return model.head_distribution(embeddings, state, summary)
 
     # -- training -------------------------------------------------------------------------------------------
 
@@ -215,7 +232,8 @@ class MosaicPolicy(DemoConditionedPolicy):
         online = self.model.encode(self.model.trunk, self.model.attention, view1_demo, view1_obs)
         summary = self.model.summarize_demo(online["demo_post"])
         embeddings = self.model.conditioned_embeddings(online["obs_post"], summary)
-        per_sample, info = self.imitation_losses(embeddings, sample)
+        distribution = self.model.head_distribution(embeddings, sample.state, summary)
+        per_sample, info = self.imitation_losses(embeddings, sample, distribution)
         if cfg.contrastive != "off" and self.training:
             contrastive = self._contrastive_loss(online, sample.demo, sample.obs, sample.valid)
             per_sample = per_sample + cfg.contrastive_loss_weight * contrastive
@@ -260,10 +278,11 @@ class MosaicPolicy(DemoConditionedPolicy):
         likelihoods with the right and the wrong demonstration are compared frame by frame."""
         cache = [(keys[partners], values[partners]) for keys, values in online["cache"]]
         obs_wrong, _ = self.model.attention.attend_observations(online["obs_in"], cache)
-        wrong_embeddings = self.model.conditioned_embeddings(obs_wrong, None if summary is None else summary[partners])
+        wrong_summary = None if summary is None else summary[partners]
+        wrong_embeddings = self.model.conditioned_embeddings(obs_wrong, wrong_summary)
         nll = [
-            (chunk_nll(self.model.action_distribution(e, sample.state), sample.chunks) * sample.chunk_valid).sum(-1)
-            for e in (embeddings, wrong_embeddings)
+            (chunk_nll(self.model.head_distribution(e, sample.state, s), sample.chunks) * sample.chunk_valid).sum(-1)
+            for e, s in ((embeddings, summary), (wrong_embeddings, wrong_summary))
         ]
         return wrong_demonstration_loss(*nll, sample.chunk_valid.any(-1))
 

@@ -74,6 +74,10 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     ),
     "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
     "one_mixture": ("this project: one logistic per action dimension", ("--policy.n_mixtures=1",)),
+    "demo_mixture_weights": (
+        "this project: mixture weights set by the demonstration",
+        ("--policy.demo_summary=true", "--policy.mixture_weights=demo"),
+    ),
 }
 """Variant name -> (group, lerobot-train options). ``paper`` is the reference row (contrastive both, window
 positive, InfoNCE, MOSAIC's attention, images only, 5-step action chunks, 5-frame stride, constant learning rate)."""
