@@ -243,7 +243,7 @@ class MosaicPolicy(DemoConditionedPolicy):
         wanted = cfg.wrong_demo_loss_weight > 0 and self.training and tasks is not None
         partners = self._wrong_demonstration_partners(online, tasks) if wanted else None
         if partners is not None:
-            wrong = self._wrong_demonstration_loss(online, summary, embeddings, partners, sample)
+            wrong = self._wrong_demonstration_loss(online, summary, distribution, partners, sample)
             per_sample = per_sample + cfg.wrong_demo_loss_weight * wrong
             info["wrong_demo_loss"] = wrong.mean().item()
         if self.model.variation_projector is not None and self.training and tasks is not None:
@@ -271,19 +271,24 @@ class MosaicPolicy(DemoConditionedPolicy):
         return online["demo_vectors"]
 
     def _wrong_demonstration_loss(
-        self, online: dict, summary: Tensor | None, embeddings: Tensor, partners: Tensor, sample: TrainingSample
+        self,
+        online: dict,
+        summary: Tensor | None,
+        right: DiscretizedLogisticMixture,
+        partners: Tensor,
+        sample: TrainingSample,
     ) -> Tensor:
         """Per-sample :func:`wrong_demonstration_loss`: the observation frames attend to (and are joined with the
         summary of) the demonstration of sample ``partners[i]``, another variation's, and the recorded chunks'
-        likelihoods with the right and the wrong demonstration are compared frame by frame."""
+        likelihoods with the right demonstration (``right``, the behaviour-cloning loss's distribution) and the
+        wrong one are compared frame by frame."""
         cache = [(keys[partners], values[partners]) for keys, values in online["cache"]]
         obs_wrong, _ = self.model.attention.attend_observations(online["obs_in"], cache)
         wrong_summary = None if summary is None else summary[partners]
-        wrong_embeddings = self.model.conditioned_embeddings(obs_wrong, wrong_summary)
-        nll = [
-            (chunk_nll(self.model.head_distribution(e, sample.state, s), sample.chunks) * sample.chunk_valid).sum(-1)
-            for e, s in ((embeddings, summary), (wrong_embeddings, wrong_summary))
-        ]
+        wrong = self.model.head_distribution(
+            self.model.conditioned_embeddings(obs_wrong, wrong_summary), sample.state, wrong_summary
+        )
+        nll = [(chunk_nll(d, sample.chunks) * sample.chunk_valid).sum(-1) for d in (right, wrong)]
         return wrong_demonstration_loss(*nll, sample.chunk_valid.any(-1))
 
     def _contrastive_loss(self, online: dict, demo: Tensor, obs: Tensor, valid: Tensor) -> Tensor:

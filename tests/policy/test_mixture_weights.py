@@ -29,7 +29,7 @@ def test_the_demonstration_alone_sets_the_mixture_weights():
     assert not torch.equal(means[0, 0], means[0, 1])  # the frame still moves the components
 
 
-def test_training_reaches_the_gate_through_both_losses():
+def test_training_with_the_wrong_demonstration_loss_gives_the_gate_a_gradient():
     policy = _gated_policy().train()
     batch = random_batch(policy.config, batch_size=4)
     batch["task"] = ["a", "b", "a", "b"]
