@@ -19,6 +19,7 @@ from mosaic_data.collection.metadata import read_sidecar
 from mosaic_data.collection.validate import validate_dataset
 
 from tests.helpers.collection import TEST_IMAGE_SIZE, ctrl_c_reaches_it
+from tests.helpers.processes import alive
 
 pytestmark = pytest.mark.usefixtures("one_ray_session_at_a_time")
 
@@ -53,14 +54,6 @@ def _parquet(root: Path) -> pd.DataFrame:
     return pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return Path(f"/proc/{pid}").exists() and "zombie" not in Path(f"/proc/{pid}/status").read_text().lower()
-
-
 def test_ray_collection_survives_ctrl_c_and_a_killed_worker_and_equals_the_local_one(tmp_path, door_output):
     output = tmp_path / "out"
     staging = output / "mosaic" / ".door_panda.collecting"
@@ -75,14 +68,14 @@ def test_ray_collection_survives_ctrl_c_and_a_killed_worker_and_equals_the_local
     committed, in_flight = _shards(staging)
     time.sleep(3)  # a worker left running would commit (or keep writing) a shard in this time
     assert _shards(staging)[0] == committed and len(committed) < 4
-    assert all(not _alive(int(p.name.rsplit("-", 1)[1])) for p in in_flight), "Ray workers outlived Ctrl-C"
+    assert all(not alive(int(p.name.rsplit("-", 1)[1])) for p in in_flight), "Ray workers outlived Ctrl-C"
 
     # 2. Resume; kill -9 the Ray worker of a shard in flight (its pid names the shard's temporary folder).
     process = _start(output)
 
     def worker_in_flight() -> int | None:  # not a leftover of step 1, whose worker is dead
         pids = [int(p.name.rsplit("-", 1)[1]) for p in _shards(staging)[1]]
-        return next((pid for pid in pids if _alive(pid)), None)
+        return next((pid for pid in pids if alive(pid)), None)
 
     _wait_for(lambda: worker_in_flight() is not None, process)
     os.kill(worker_in_flight(), signal.SIGKILL)

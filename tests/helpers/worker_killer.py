@@ -19,29 +19,13 @@ import sys
 import time
 from pathlib import Path
 
-from tests.helpers.processes import command_line
+from tests.helpers.processes import alive, children, command_line
 
 FIRST_EPISODE_DEADLINE_S = 300.0
 """No finished episode by then: the command is killed and the report says so."""
 DEATH_WAIT_S = 30.0
 STOP_WAIT_S = 120.0
 POLL_S = 0.05
-
-
-def children(pid: int) -> list[int]:
-    path = Path(f"/proc/{pid}/task/{pid}/children")
-    try:
-        return [int(child) for child in path.read_text().split()]
-    except OSError:
-        return []
-
-
-def alive(pid: int) -> bool:
-    """Running, not a zombie waiting to be reaped."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
 
 
 def finished_episodes(log: Path, planned: int) -> int:
