@@ -74,6 +74,10 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
     ),
     "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
     "one_mixture": ("this project: one logistic per action dimension", ("--policy.n_mixtures=1",)),
+    "one_mixture_wrong_demo": (
+        "this project: one logistic per action dimension that a wrong demonstration must not explain",
+        ("--policy.n_mixtures=1", "--policy.wrong_demo_loss_weight=10"),
+    ),
     "demo_mixture_weights": (
         "this project: mixture weights set by the demonstration",
         ("--policy.demo_summary=true", "--policy.mixture_weights=demo"),
