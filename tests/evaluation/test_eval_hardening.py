@@ -16,8 +16,7 @@ from pathlib import Path
 import pytest
 
 from tests.helpers.cli_errors import one_line_error
-from tests.helpers.processes import alive
-from tests.helpers.worker_killer import kill_tree
+from tests.helpers.processes import alive, kill_tree
 from tests.helpers.video_damage import drop_last_frames, overwrite_middle
 
 from pipelines.evaluation.cli import main as mosaic_eval

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 from pathlib import Path
 
 
@@ -33,3 +35,12 @@ def children(pid: int) -> list[int]:
         return [int(child) for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
     except OSError:
         return []
+
+
+def kill_tree(pid: int) -> None:
+    """SIGKILL the process and its children (those that already ended are skipped)."""
+    for process in [*children(pid), pid]:
+        try:
+            os.kill(process, signal.SIGKILL)
+        except OSError:
+            pass

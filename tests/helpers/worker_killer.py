@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from tests.helpers.processes import alive, children, command_line
+from tests.helpers.processes import alive, children, command_line, kill_tree
 
 FIRST_EPISODE_DEADLINE_S = 300.0
 """No finished episode by then: the command is killed and the report says so."""
@@ -35,14 +35,6 @@ def finished_episodes(log: Path, planned: int) -> int:
 
 def log_tail(log: Path) -> str:
     return log.read_bytes()[-2000:].decode(errors="replace")
-
-
-def kill_tree(pid: int) -> None:
-    for process in [*children(pid), pid]:
-        try:
-            os.kill(process, signal.SIGKILL)
-        except OSError:
-            pass
 
 
 def watch(pid: int, log: Path, planned: int) -> dict:
