@@ -43,6 +43,11 @@ batch size and pixels per image."""
 DEMO_SUMMARY_STEP_RATIO = 1.09
 """A MOSAIC step with ``--policy.demo_summary=true`` against one without, on the 2-core machine with the conv trunk
 (0.76 s per step over 4500- and 5000-step door runs alone, against 0.70)."""
+WRONG_DEMO_STEP_RATIO = 1.8
+"""A MOSAIC step with ``--policy.wrong_demo_loss_weight`` above 0 (one more attention pass and action head, for the
+wrong demonstration) against one with the summary alone, on the 2-core machine with the conv trunk: 1.40 s for
+the ``cpu`` preset's MOSAIC trained alone on press_button (lerobot-train's median ``updt_s`` over 2250 steps; 1.3
+over the first 400) against the summary's 0.76 s."""
 CPU_REFERENCE_SIZES = (16, 48, 88)
 """Batch size, height and width of the ``MEASURED_CPU_SECONDS_PER_STEP`` measurement."""
 MEASURED_CPU_STEP_RATIO = {
@@ -97,6 +102,12 @@ def _policy_type(stage: Stage) -> str | None:
     return next((a.split("=", 1)[1] for a in stage.command if a.startswith("--policy.type=")), None)
 
 
+def _wrong_demo_loss(stage: Stage) -> bool:
+    """Whether a training stage trains with the wrong-demonstration loss (its last weight option above 0)."""
+    weights = [a.split("=", 1)[1] for a in stage.command if a.startswith("--policy.wrong_demo_loss_weight=")]
+    return bool(weights) and float(weights[-1]) > 0
+
+
 def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None = None) -> str:
     """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours; with ``output_dir``,
     only the stages not finished there (an extended or resumed experiment)."""
@@ -132,6 +143,7 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         types = [_policy_type(s) for s in train]
         seconds = sum(_train_steps(s) * per_step * ratios.get(t, 1.0)
                       * (DEMO_SUMMARY_STEP_RATIO if "--policy.demo_summary=true" in s.command else 1.0)
+                      * (WRONG_DEMO_STEP_RATIO if _wrong_demo_loss(s) else 1.0)
                       for s, t in zip(train, types))
         baselines = [b for b in ratios if b != "mosaic" and b in types]
         text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per MOSAIC step, scaled "

@@ -103,26 +103,32 @@ def test_paper_preset_prints_its_gpu_hours(capsys, tmp_path):
 
 def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
     # 5 methods x 2250 steps at the 0.7 s per MOSAIC step of the conv trunk at the cpu preset's own sizes, MOSAIC's
-    # scaled by 1.09 for the preset's demonstration summary, each baseline's by its measured ratio
-    # (0.73 + 0.43 + 0.46 + 0.94): 2250 x 0.7 x 3.65 s = 1.6 hours
+    # scaled by 1.09 for the preset's demonstration summary and 1.8 for its wrong-demonstration loss, each
+    # baseline's by its measured ratio (0.73 + 0.43 + 0.46 + 0.94): 2250 x 0.7 x (1.962 + 2.56) s = 2.0 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
     out = capsys.readouterr().out
-    assert "training about 1.6 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
+    assert "training about 2.0 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
     assert "a baseline's step: tosil 0.73x, lstm_osil 0.43x, mlp_osil 0.46x, daml 0.94x of it)" in out
-    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 1.09 + 0.64 + 0.55 + 0.56 + 0.48: 5.2 hours
+    # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 1.962 + 0.64 + 0.55 + 0.56 + 0.48: 6.5 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 5.2 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
+    assert "training about 6.5 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
     # one baseline alone: LSTM at 0.43x, 2250 x 0.7 x 0.43 s = 11 minutes
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "lstm"), "--dry-run",
               "--set", "learning_methods=lstm_osil"])
     assert "training about 11 minutes on 2 CPU cores" in capsys.readouterr().out
-    # MOSAIC as the preset has it (with the summary): 2250 x 0.7 x 1.09 s = 29 minutes; the paper's MOSAIC: 26
+    # MOSAIC as the preset has it: 2250 x 0.7 x 1.09 x 1.8 s = 52 minutes; the paper's MOSAIC: 26
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "preset"), "--dry-run"])
-    assert "training about 29 minutes on 2 CPU cores" in capsys.readouterr().out
+    assert "training about 52 minutes on 2 CPU cores" in capsys.readouterr().out
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "paper_model"), "--dry-run",
               "--set", "mosaic_options="])
     assert "training about 26 minutes on 2 CPU cores" in capsys.readouterr().out
+    # the wrong demonstration's pass costs only where its weight is above 0 (the last option given wins)
+    for options, minutes in [("--policy.wrong_demo_loss_weight=10", 47),
+                             ("--policy.wrong_demo_loss_weight=10 --policy.wrong_demo_loss_weight=0", 26)]:
+        cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / str(minutes)), "--dry-run",
+                  "--set", f"mosaic_options={options}"])
+        assert f"training about {minutes} minutes on 2 CPU cores" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -310,7 +316,8 @@ def test_the_report_names_the_training_options_of_its_preset():
     text = settings_text("cpu", PRESETS["cpu"], [])
     assert "lerobot-train options of every run: `--policy.action_chunk=10`." in text
     assert ("Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true "
-            "--policy.variation_loss_weight=20 --policy.hand_relative_targets=true`.") in text
+            "--policy.variation_loss_weight=20 --policy.hand_relative_targets=true --policy.n_mixtures=1 "
+            "--policy.wrong_demo_loss_weight=10`.") in text
     assert "Of MOSAIC's runs" not in settings_text("quick", PRESETS["quick"], [])
     with_summary = resolve_preset("quick", ["mosaic_options=--policy.demo_summary=true"])
     assert "Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true`." in settings_text(
