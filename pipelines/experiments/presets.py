@@ -74,9 +74,9 @@ at the same success on door (the README's door and press_button tables)."""
 
 PRESETS: dict[str, ExperimentPreset] = {
     "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
-    # Under an hour of training per MOSAIC model on 2 cores with the small conv trunk and CPU_MOSAIC_OPTIONS (about
-    # 1.1-1.3 s per step at batch 16, 48x88, the wrong demonstration's pass included; the paper's resnet18 trunk:
-    # 2.5 s without it); 10-step action chunks; novel-task models train on 3 tasks.
+    # Under an hour of training per MOSAIC model on 2 cores with the small conv trunk and CPU_MOSAIC_OPTIONS (54 min
+    # alone, a median 1.4 s per step at batch 16, 48x88, the wrong demonstration's pass included; the paper's resnet18
+    # trunk: 2.5 s without it); 10-step action chunks; novel-task models train on 3 tasks.
     "cpu": ExperimentPreset(
         image_size="48x88", episodes=40, steps=2250, batch_size=16, vision_backbone="conv", save_every=750,
         train_options=("--policy.action_chunk=10",),
