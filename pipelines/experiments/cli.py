@@ -93,18 +93,23 @@ def _duration(seconds: float, unit: str = "hours") -> str:
     return f"{seconds / 3600:.1f} {unit}"
 
 
+def _option_values(stage: Stage, name: str) -> list[str]:
+    """The values of ``--NAME=VALUE`` in a stage's command, in the order given (empty when it is not there)."""
+    return [a.split("=", 1)[1] for a in stage.command if a.startswith(f"--{name}=")]
+
+
 def _train_steps(stage: Stage) -> int:
-    return int(next(a for a in stage.command if a.startswith("--steps=")).split("=")[1])
+    return int(_option_values(stage, "steps")[0])
 
 
 def _policy_type(stage: Stage) -> str | None:
     """The --policy.type of a training stage; None for a fine-tuned model (its type is in its checkpoint)."""
-    return next((a.split("=", 1)[1] for a in stage.command if a.startswith("--policy.type=")), None)
+    return next(iter(_option_values(stage, "policy.type")), None)
 
 
 def _wrong_demo_loss(stage: Stage) -> bool:
     """Whether a training stage trains with the wrong-demonstration loss (its last weight option above 0)."""
-    weights = [a.split("=", 1)[1] for a in stage.command if a.startswith("--policy.wrong_demo_loss_weight=")]
+    weights = _option_values(stage, "policy.wrong_demo_loss_weight")
     return bool(weights) and float(weights[-1]) > 0
 
 
@@ -193,10 +198,10 @@ def _record_settings(output_dir: Path, args: argparse.Namespace, overrides: list
 
 def _check_fraction_data(stage: Stage, episodes_per_variation: int) -> None:
     """A training run on a fraction of a dataset: the dataset must be numbered as the plan assumed."""
-    if not any(a.startswith("--dataset.episodes=") for a in stage.command):
+    if not _option_values(stage, "dataset.episodes"):
         return
-    root = Path(next(a for a in stage.command if a.startswith("--dataset.root=")).split("=", 1)[1])
-    repo = next(a for a in stage.command if a.startswith("--dataset.repo_id=")).split("=", 1)[1]
+    root = Path(_option_values(stage, "dataset.root")[0])
+    repo = _option_values(stage, "dataset.repo_id")[0]
     check_episode_layout(root, repo.split("/")[1].removesuffix("_panda"), episodes_per_variation)
 
 
