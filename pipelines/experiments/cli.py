@@ -93,6 +93,11 @@ def _duration(seconds: float, unit: str = "hours") -> str:
     return f"{seconds / 3600:.1f} {unit}"
 
 
+def _count(number: int, noun: str) -> str:
+    """``"1 training run"``, ``"3 training runs"``."""
+    return f"{number} {noun}{'' if number == 1 else 's'}"
+
+
 def _option_values(stage: Stage, name: str) -> list[str]:
     """The values of ``--NAME=VALUE`` in a stage's command, in the order given (empty when it is not there)."""
     return [a.split("=", 1)[1] for a in stage.command if a.startswith(f"--{name}=")]
@@ -105,6 +110,12 @@ def _train_steps(stage: Stage) -> int:
 def _policy_type(stage: Stage) -> str | None:
     """The --policy.type of a training stage; None for a fine-tuned model (its type is in its checkpoint)."""
     return next(iter(_option_values(stage, "policy.type")), None)
+
+
+def _demo_summary(stage: Stage) -> bool:
+    """Whether a training stage trains with the demonstration summary (its last ``--policy.demo_summary`` true)."""
+    values = _option_values(stage, "policy.demo_summary")
+    return bool(values) and values[-1].lower() == "true"
 
 
 def _wrong_demo_loss(stage: Stage) -> bool:
@@ -135,8 +146,8 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         rollout_steps += episodes * variations * horizon
     workers = max(1, preset.workers)
     left = f" left of {len(plan.stages)} ({finished} finished before)" if finished else ""
-    text = (f"{len(stages)} stages{left}: {len(train)} training runs ({steps} steps in all), "
-            f"{len(evaluations)} evaluations (at most {rollout_steps} control steps, about "
+    text = (f"{_count(len(stages), 'stage')}{left}: {_count(len(train), 'training run')} ({steps} steps in all), "
+            f"{_count(len(evaluations), 'evaluation')} (at most {rollout_steps} control steps, about "
             f"{_duration(rollout_steps / MEASURED_ROLLOUT_STEPS_PER_S, 'CPU-hours')} of rollouts at "
             f"{MEASURED_ROLLOUT_STEPS_PER_S} steps/s per worker, {workers} workers)")
     if preset.device == "cpu":
@@ -147,15 +158,20 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         ratios = MEASURED_CPU_STEP_RATIO[preset.vision_backbone]
         types = [_policy_type(s) for s in train]
         seconds = sum(_train_steps(s) * per_step * ratios.get(t, 1.0)
-                      * (DEMO_SUMMARY_STEP_RATIO if "--policy.demo_summary=true" in s.command else 1.0)
+                      * (DEMO_SUMMARY_STEP_RATIO if _demo_summary(s) else 1.0)
                       * (WRONG_DEMO_STEP_RATIO if _wrong_demo_loss(s) else 1.0)
                       for s, t in zip(train, types))
         baselines = [b for b in ratios if b != "mosaic" and b in types]
-        text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per MOSAIC step, scaled "
-                 f"from {measured} s measured with the {preset.vision_backbone} trunk at "
+        options = [f"{ratio}x with {what}" for ratio, what, used in (
+            (DEMO_SUMMARY_STEP_RATIO, "the demonstration summary", any(map(_demo_summary, train))),
+            (WRONG_DEMO_STEP_RATIO, "the wrong-demonstration loss", any(map(_wrong_demo_loss, train))),
+        ) if used]
+        text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per step of the paper's "
+                 f"MOSAIC, scaled from {measured} s measured with the {preset.vision_backbone} trunk at "
                  f"{ref_height}x{ref_width}, batch {batch}"
+                 + (f"; {', '.join(options)}" if options else "")
                  + (f"; a baseline's step: {', '.join(f'{b} {ratios[b]}x' for b in baselines)} of it" if baselines else "")
-                + ")")
+                 + ")")
     if preset.device == "cuda":
         text += (f"; training about {steps * ASSUMED_GPU_SECONDS_PER_STEP / 3600:.0f} GPU-hours at an assumed "
                  f"{ASSUMED_GPU_SECONDS_PER_STEP} s per step (not measured here)")

@@ -107,12 +107,13 @@ def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
     # baseline's by its measured ratio (0.73 + 0.43 + 0.46 + 0.94): 2250 x 0.7 x (1.962 + 2.56) s = 2.0 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door"])
     out = capsys.readouterr().out
-    assert "training about 2.0 hours on 2 CPU cores (0.7 s per MOSAIC step" in out
+    assert "training about 2.0 hours on 2 CPU cores (0.7 s per step of the paper's MOSAIC" in out
+    assert "; 1.09x with the demonstration summary, 1.8x with the wrong-demonstration loss;" in out
     assert "a baseline's step: tosil 0.73x, lstm_osil 0.43x, mlp_osil 0.46x, daml 0.94x of it)" in out
     # the paper's ResNet-18 trunk at the same sizes: 2.5 s per step, ratios 1.962 + 0.64 + 0.55 + 0.56 + 0.48: 6.5 hours
     cli.main(["run", "single-task", "--preset", "cpu", "--output", str(tmp_path), "--dry-run", "--tasks", "door",
               "--set", "vision_backbone=resnet18"])
-    assert "training about 6.5 hours on 2 CPU cores (2.5 s per MOSAIC step" in capsys.readouterr().out
+    assert "training about 6.5 hours on 2 CPU cores (2.5 s per step of the paper's MOSAIC" in capsys.readouterr().out
     # one baseline alone: LSTM at 0.43x, 2250 x 0.7 x 0.43 s = 11 minutes
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "lstm"), "--dry-run",
               "--set", "learning_methods=lstm_osil"])
@@ -122,10 +123,14 @@ def test_cpu_preset_prints_its_training_hours(capsys, tmp_path):
     assert "training about 52 minutes on 2 CPU cores" in capsys.readouterr().out
     cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / "paper_model"), "--dry-run",
               "--set", "mosaic_options="])
-    assert "training about 26 minutes on 2 CPU cores" in capsys.readouterr().out
-    # the wrong demonstration's pass costs only where its weight is above 0 (the last option given wins)
+    out = capsys.readouterr().out
+    assert "training about 26 minutes on 2 CPU cores" in out
+    assert "with the demonstration summary" not in out and "with the wrong-demonstration loss" not in out
+    # the summary and the wrong demonstration's pass cost only where the last option given turns them on
     for options, minutes in [("--policy.wrong_demo_loss_weight=10", 47),
-                             ("--policy.wrong_demo_loss_weight=10 --policy.wrong_demo_loss_weight=0", 26)]:
+                             ("--policy.wrong_demo_loss_weight=10 --policy.wrong_demo_loss_weight=0", 26),
+                             ("--policy.demo_summary=true", 29),
+                             ("--policy.demo_summary=true --policy.demo_summary=false", 26)]:
         cli.main(["run", "learning", "--preset", "cpu", "--output", str(tmp_path / str(minutes)), "--dry-run",
                   "--set", f"mosaic_options={options}"])
         assert f"training about {minutes} minutes on 2 CPU cores" in capsys.readouterr().out
@@ -184,7 +189,7 @@ def test_more_seeds_extend_an_experiment_and_a_dry_run_refuses_what_the_run_woul
         (folder / "done.json").write_text("{}")
     text = cli.estimate_text(plan, cli.resolve_preset("smoke", ["steps=4", "seeds=2"]), output)
     assert text.startswith(f"{len(plan.stages) - len(seed1)} stages left of {len(plan.stages)} ({len(seed1)} finished before)")
-    assert "1 training runs (4 steps in all)" in text
+    assert "1 training run (4 steps in all)" in text
     assert cli.main(["run", "learning", "--preset", "smoke", "--set", "steps=6", "--output", str(output), "--dry-run"]) == 2
     assert "holds a learning run with other settings" in capsys.readouterr().err
 
