@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -124,6 +125,14 @@ def _wrong_demo_loss(stage: Stage) -> bool:
     return bool(weights) and float(weights[-1]) > 0
 
 
+OPTION_STEP_COSTS = (
+    (DEMO_SUMMARY_STEP_RATIO, "the demonstration summary", _demo_summary),
+    (WRONG_DEMO_STEP_RATIO, "the wrong-demonstration loss", _wrong_demo_loss),
+)
+"""(step time ratio, what it pays for, whether a training stage uses it): the MOSAIC options whose measured cost
+the CPU estimate multiplies into a run's steps and names in its text."""
+
+
 def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None = None) -> str:
     """How much work a plan is: training steps, rollouts, and on a GPU preset the GPU-hours; with ``output_dir``,
     only the stages not finished there (an extended or resumed experiment)."""
@@ -157,15 +166,11 @@ def estimate_text(plan: Plan, preset: ExperimentPreset, output_dir: Path | None 
         per_step = measured * preset.batch_size * height * width / (batch * ref_height * ref_width)
         ratios = MEASURED_CPU_STEP_RATIO[preset.vision_backbone]
         types = [_policy_type(s) for s in train]
-        seconds = sum(_train_steps(s) * per_step * ratios.get(t, 1.0)
-                      * (DEMO_SUMMARY_STEP_RATIO if _demo_summary(s) else 1.0)
-                      * (WRONG_DEMO_STEP_RATIO if _wrong_demo_loss(s) else 1.0)
-                      for s, t in zip(train, types))
+        costs = [[cost for cost in OPTION_STEP_COSTS if cost[2](s)] for s in train]
+        seconds = sum(math.prod((ratio for ratio, _, _ in paid), start=_train_steps(s) * per_step * ratios.get(t, 1.0))
+                      for s, t, paid in zip(train, types, costs))
         baselines = [b for b in ratios if b != "mosaic" and b in types]
-        options = [f"{ratio}x with {what}" for ratio, what, used in (
-            (DEMO_SUMMARY_STEP_RATIO, "the demonstration summary", any(map(_demo_summary, train))),
-            (WRONG_DEMO_STEP_RATIO, "the wrong-demonstration loss", any(map(_wrong_demo_loss, train))),
-        ) if used]
+        options = [f"{cost[0]}x with {cost[1]}" for cost in OPTION_STEP_COSTS if any(cost in paid for paid in costs)]
         text += (f"; training about {_duration(seconds)} on 2 CPU cores ({per_step:.2g} s per step of the paper's "
                  f"MOSAIC, scaled from {measured} s measured with the {preset.vision_backbone} trunk at "
                  f"{ref_height}x{ref_width}, batch {batch}"
