@@ -87,6 +87,7 @@ class ScriptedExpert:
         self._offset = np.zeros(3)
         self._frozen_targets: dict[str, np.ndarray] = {}
         self.retries = 0
+        self.acting_phase: str | None = None  # the phase that chose the last action (traces show it)
 
     def start_over(self) -> None:
         """Restart the script from its first phase (after a failed grasp), keeping the tracking offset."""
@@ -150,6 +151,7 @@ class ScriptedExpert:
         if phase.paced:
             max_step = self._paced_step(target, orientation, max_step)
         action = self._step_towards(target, orientation, max_step, phase.gripper)
+        self.acting_phase = phase.name
         self._advance(phase, target)
         return action
 

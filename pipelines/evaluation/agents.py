@@ -78,6 +78,7 @@ class AgentStep:
 
     action: np.ndarray
     attention: list[np.ndarray] | None = None
+    phase: str | None = None  # the scripted expert's phase when it chose the action; None for a policy
 
 
 class Agent(Protocol):
@@ -277,6 +278,24 @@ def workspace_action_stats() -> dict[str, dict[str, torch.Tensor]]:
     return {ACTION_KEY: {"min": torch.from_numpy(ACTION_LOW.copy()), "max": torch.from_numpy(ACTION_HIGH.copy())}}
 
 
+def policy_agent_spec(path: str, options: dict[str, Any], record: bool = False) -> tuple[AgentSpec, dict[str, Any]]:
+    """The agent of the checkpoint at ``path`` with the inference ``options`` (``--policy.NAME``), and its config.
+
+    The checks need only config.json and run first (an EvaluationError names the fix); the weights file is checked
+    next, and a bad option value is reported here, before any worker starts."""
+    checkpoint = resolve_checkpoint(path)
+    config = read_config(checkpoint)
+    image_hw = checkpoint_image_hw(checkpoint, config)
+    with_demo = takes_demo(policy_class(checkpoint, config["type"]))
+    check_checkpoint_files(checkpoint)
+    if options:
+        policy_config(checkpoint, options)
+    spec = AgentSpec(
+        "policy", str(path), str(checkpoint), image_hw, record, takes_demo=with_demo, policy_options=tuple(options.items())
+    )
+    return spec, config
+
+
 def untrained_mosaic(height: int, width: int, **options: Any) -> tuple[Any, Any, Any]:
     """(policy, preprocessor, postprocessor): MOSAIC at initialisation, the same weights in every process (seed 0),
     with an action range that is the workspace box. The paper's "No Training" row; the untrained checkpoints that
@@ -380,7 +399,8 @@ class ExpertAgent:
         self._expert = make_expert(env.task_env, variation=self.spec.expert_variation)
 
     def act(self, observation: dict[str, Any], env: MosaicGymEnv) -> AgentStep:
-        return AgentStep(action=np.asarray(self._expert.act(), dtype=np.float64))
+        action = np.asarray(self._expert.act(), dtype=np.float64)
+        return AgentStep(action=action, phase=self._expert.acting_phase)
 
 
 def build_agent(spec: AgentSpec) -> Agent:

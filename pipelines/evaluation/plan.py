@@ -16,17 +16,7 @@ from typing import Any
 
 from mosaic_data.constants import IMAGE_HEIGHT, IMAGE_WIDTH, MAX_EPISODES_PER_VARIATION, N_DEMO_FRAMES
 
-from .agents import (
-    AgentSpec,
-    EvaluationError,
-    check_checkpoint_files,
-    checkpoint_image_hw,
-    policy_class,
-    policy_config,
-    read_config,
-    resolve_checkpoint,
-    takes_demo,
-)
+from .agents import AgentSpec, EvaluationError, policy_agent_spec
 from .demo_sources import DatasetDemoSource, DemoSourceSpec
 from .options import check_arguments, policy_options
 from .rollouts import EpisodeSpec
@@ -74,18 +64,8 @@ class EvaluationPlan:
                 f"--policy.{next(iter(options))} sets an option of a checkpoint: pass --policy.path=<checkpoint> with it"
             )
         for path in args.policy_paths:
-            checkpoint = resolve_checkpoint(path)
-            config = read_config(checkpoint)
-            image_hw = checkpoint_image_hw(checkpoint, config)
-            with_demo = takes_demo(policy_class(checkpoint, config["type"]))
-            check_checkpoint_files(checkpoint)  # after the fit checks: those need only config.json
-            n_demo_frames = config.get("n_demo_frames", n_demo_frames) if with_demo else n_demo_frames
-            if options:
-                policy_config(checkpoint, options)  # a bad value is reported here, before any worker starts
-            spec = AgentSpec(
-                "policy", str(path), str(checkpoint), image_hw, record, takes_demo=with_demo,
-                policy_options=tuple(options.items()),
-            )
+            spec, config = policy_agent_spec(path, options, record)
+            n_demo_frames = config.get("n_demo_frames", n_demo_frames) if spec.takes_demo else n_demo_frames
             groups.setdefault(config["type"], {})[len(agents)] = str(path)
             agents.append(spec)
         default_hw = args.image_size or (agents[0].image_hw if agents else (IMAGE_HEIGHT, IMAGE_WIDTH))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,12 +28,16 @@ import torch
 from mosaic_data.envs import MosaicGymEnv
 from mosaic_data.tasks import get_task_class
 
-from .agents import Agent, AgentSpec, build_agent
+from .agents import Agent, AgentSpec, AgentStep, build_agent
 from .demo_sources import DemoSourceSpec, build_demo_source, policy_frames
 from .env_cache import EnvCache
 
 if TYPE_CHECKING:
     from mosaic_data.tasks.base import MosaicTaskEnv
+
+
+StepObserver = Callable[[int, MosaicGymEnv, AgentStep], None]
+"""Called with (step index, environment, the agent's step) before each action is applied."""
 
 
 @dataclass(frozen=True)
@@ -125,7 +130,9 @@ class RolloutWorker:
         self._demo_sources: dict[tuple[int, int], object] = {}
         self._envs = EnvCache()
 
-    def run(self, spec: EpisodeSpec) -> EpisodeResult:
+    def run(self, spec: EpisodeSpec, on_step: StepObserver | None = None) -> EpisodeResult:
+        """One episode; ``on_step(step, env, agent_step)`` is called before each action is applied, with the state
+        the agent acted on (a step-by-step trace of the episode)."""
         agent = self._agent(spec.agent_index)
         agent_spec = agent.spec
         record = spec.record
@@ -154,6 +161,8 @@ class RolloutWorker:
                 recording.actions.append(step.action)
                 if step.attention is not None:
                     recording.attention.append(np.stack([layer.mean(axis=(0, 1)) for layer in step.attention]))
+            if on_step is not None:
+                on_step(steps, env, step)
             observation, _, terminated, truncated, info = env.step(step.action)
             steps += 1
             goals.update(steps)
