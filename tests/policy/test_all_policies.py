@@ -134,6 +134,8 @@ def test_every_trained_checkpoint_loads_through_lerobots_factory_and_acts(traine
     for policy_type, checkpoint in trained_checkpoints.items():
         config = PreTrainedConfig.from_pretrained(checkpoint)
         assert config.type == policy_type and config.demo_root is None
+        if policy_type == "mosaic":  # the cpu preset's checkpoints act with temporal ensembling by default
+            assert config.temporal_ensemble_coeff == 0.01
         policy = get_policy_class(policy_type).from_pretrained(checkpoint, config=config).eval()
         assert policy.acting_model is policy.averaged_model and int(policy.weight_average_updates) == 2, policy_type
         preprocessor, postprocessor = make_pre_post_processors(config, pretrained_path=str(checkpoint))
