@@ -90,16 +90,15 @@ def trace_episodes(args: argparse.Namespace) -> list[tuple[int, object, Track, T
     try:
         for episode in args.episodes:
             seeds = episode_seeds(episode_seed(args.seed, episode), args.variation)
-            tracks = []
-            for agent_index in (0, 1):
-                track = Track()
-                spec = EpisodeSpec(agent_index, args.task, args.variation, episode, seeds.agent, seeds.demo)
-                result = worker.run(spec, on_step=track.observe)
-                track.success = result.success
-                tracks.append(track)
-                if agent_index == 0:
-                    policy_result = result
-            traced.append((episode, policy_result, *tracks))
+            policy_track, expert_track = Track(), Track()
+            policy_result = worker.run(
+                EpisodeSpec(0, args.task, args.variation, episode, seeds.agent, seeds.demo), on_step=policy_track.observe
+            )
+            expert_result = worker.run(
+                EpisodeSpec(1, args.task, args.variation, episode, seeds.agent, seeds.demo), on_step=expert_track.observe
+            )
+            policy_track.success, expert_track.success = policy_result.success, expert_result.success
+            traced.append((episode, policy_result, policy_track, expert_track))
     finally:
         worker.close()
     return traced

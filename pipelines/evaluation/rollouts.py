@@ -18,8 +18,8 @@ Every episode also records which variation the agent *achieved* (:class:`GoalTra
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
