@@ -26,7 +26,7 @@ import numpy as np
 
 from mosaic_data.cli_args import OneLineErrorParser, non_negative_int, parse_int_list, positive_int
 from mosaic_data.constants import EVAL_BASE_SEED, MAX_EPISODES_PER_VARIATION
-from pipelines.evaluation.options import POLICY_OPTIONS, EvaluationError, policy_options
+from pipelines.evaluation.options import EvaluationError, add_policy_option_arguments, policy_options
 
 APART_M = 0.05
 """The hands count as parted once they stand farther apart than this (the first such step is named)."""
@@ -55,8 +55,7 @@ class Track:
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineErrorParser(prog="python -m pipelines.bench.rollout_trace", description=__doc__.splitlines()[0])
     parser.add_argument("--policy.path", dest="policy_path", required=True, metavar="DIR", help="a lerobot-train checkpoint")
-    for name, (value_type, help_text) in POLICY_OPTIONS.items():
-        parser.add_argument(f"--policy.{name}", dest=f"policy_{name}", type=value_type, default=None, metavar="V", help=help_text)
+    add_policy_option_arguments(parser)
     parser.add_argument("--task", required=True, help="task name (see `mosaic-data tasks`)")
     parser.add_argument("--variation", type=non_negative_int, required=True, help="the variation demonstrated")
     parser.add_argument("--episodes", type=parse_int_list, default=[0], help="episode indices, as mosaic-eval numbers them (default 0)")

@@ -43,7 +43,7 @@ from mosaic_data.exit_status import BAD_INPUT, FAILURE, ExitContract, Stopped, i
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .options import BASELINES, EVAL_BASE_SEED, POLICY_OPTIONS  # no torch, LeRobot or simulator for --help
+    from .options import BASELINES, EVAL_BASE_SEED, add_policy_option_arguments  # no torch, LeRobot or simulator for --help
 
     parser = OneLineErrorParser(
         prog="mosaic-eval",
@@ -55,11 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
         "lerobot-train pretrained_model folder or run folder); repeat it for several checkpoints of one recipe (e.g. "
         "training seeds): checkpoints of one policy type form one row, mean +- std over them, confusion matrices summed",
     )
-    for name, (value_type, help_text) in POLICY_OPTIONS.items():
-        parser.add_argument(
-            f"--policy.{name}", dest=f"policy_{name}", type=value_type, default=None, metavar="V",
-            help=f"{help_text}; set on every checkpoint (default: the checkpoint's)",
-        )
+    add_policy_option_arguments(parser, "; set on every checkpoint (default: the checkpoint's)")
     parser.add_argument(
         "--baseline", action="append", default=[], choices=BASELINES,
         help="sanity rows through the same loop: the scripted expert, or MOSAIC at initialisation (repeatable)",

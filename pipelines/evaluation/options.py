@@ -37,6 +37,14 @@ POLICY_OPTIONS: dict[str, tuple[Callable[[str], object], str]] = {
 holds the training run fixed."""
 
 
+def add_policy_option_arguments(parser: argparse.ArgumentParser, help_suffix: str = "") -> None:
+    """One ``--policy.NAME`` argument per POLICY_OPTIONS entry (read back with :func:`policy_options`)."""
+    for name, (value_type, help_text) in POLICY_OPTIONS.items():
+        parser.add_argument(
+            f"--policy.{name}", dest=f"policy_{name}", type=value_type, default=None, metavar="V", help=help_text + help_suffix
+        )
+
+
 def policy_options(args: argparse.Namespace) -> dict[str, object]:
     """The ``--policy.NAME`` inference options given on the command line (name -> value)."""
     return {name: getattr(args, f"policy_{name}") for name in POLICY_OPTIONS if getattr(args, f"policy_{name}", None) is not None}
