@@ -51,3 +51,34 @@ def interval_text(interval: tuple[float, float] | None, instances: int) -> str:
         return "(n=0)"
     low, high = interval
     return f"[{100 * low:.1f}, {100 * high:.1f}] (n={instances})"
+
+
+def paired_difference_interval(
+    both: float, after_only: float, before_only: float, neither: float, z: float = Z_95
+) -> tuple[float, float] | None:
+    """95% interval of ``after - before``, two success rates measured on the same episodes (Newcombe's hybrid score
+    interval for paired data, his 1998 method 10); None without episodes.
+
+    The two rates share their episodes, so their difference varies less than two independent rates would: only the
+    episodes where exactly one of the two succeeded (``after_only``, ``before_only``) move it. The interval combines
+    each rate's Wilson interval with the correlation of the paired outcomes (continuity-corrected towards 0 when
+    positive), and stays inside [-1, 1]. Counts may be fractional: averaged over checkpoints that replayed the same
+    instances, as :func:`rate_interval` takes them."""
+    episodes = both + after_only + before_only + neither
+    if episodes <= 0:
+        return None
+    after, before = (both + after_only) / episodes, (both + before_only) / episodes
+    after_low, after_high = wilson_interval(min(both + after_only, episodes), episodes, z)  # type: ignore[arg-type]
+    before_low, before_high = wilson_interval(min(both + before_only, episodes), episodes, z)  # type: ignore[arg-type]
+    spread = (both + after_only) * (before_only + neither) * (both + before_only) * (after_only + neither)
+    association = both * neither - after_only * before_only
+    if association > 0:
+        association = max(association - episodes / 2, 0.0)
+    correlation = association / math.sqrt(spread) if spread > 0 else 0.0
+    difference = after - before
+    # each side of the difference combines one rate's distance to its lower bound with the other's to its upper one
+    down, up = after - after_low, before_high - before
+    below = math.sqrt(down * down - 2 * correlation * down * up + up * up)
+    up, down = after_high - after, before - before_low
+    above = math.sqrt(up * up - 2 * correlation * up * down + down * down)
+    return max(-1.0, difference - below), min(1.0, difference + above)

@@ -9,7 +9,13 @@ import pytest
 from scipy.optimize import brentq
 from scipy.stats import binomtest
 
-from pipelines.evaluation.intervals import Z_95, interval_text, rate_interval, wilson_interval
+from pipelines.evaluation.intervals import (
+    Z_95,
+    interval_text,
+    paired_difference_interval,
+    rate_interval,
+    wilson_interval,
+)
 
 KNOWN = [  # (successes, episodes, low, high), 4 decimals, z = 1.96
     (0, 10, 0.0, 0.2775),
@@ -66,3 +72,21 @@ def test_a_rate_averaged_over_checkpoints_is_taken_on_its_instances():
 def test_the_text_is_percent_with_the_episodes():
     assert interval_text(wilson_interval(14, 20), 20) == "[48.1, 85.5] (n=20)"
     assert interval_text(wilson_interval(0, 10), 10) == "[0.0, 27.8] (n=10)"
+
+
+def test_paired_difference_matches_the_published_newcombe_interval():
+    """Fagerland, Lydersen and Laake (2014, Stat. Med.), airway hyper-responsiveness before and after stem cell
+    transplantation, 21 children: 1 both, 1 after only, 7 before only, 12 neither; the difference -0.286 with the
+    Newcombe hybrid score interval (-0.507, -0.026)."""
+    low, high = paired_difference_interval(both=1, after_only=1, before_only=7, neither=12)
+    assert (low, high) == pytest.approx((-0.507, -0.026), abs=5e-4)
+    assert paired_difference_interval(1, 7, 1, 12) == pytest.approx((-high, -low))  # the sides swapped
+
+
+def test_paired_difference_edges():
+    assert paired_difference_interval(0, 0, 0, 0) is None
+    low, high = paired_difference_interval(10, 0, 0, 10)  # no episode changed: an interval around 0
+    assert low == pytest.approx(-high) and 0 < high < 0.15
+    assert paired_difference_interval(0, 20, 0, 0)[1] == 1.0  # every episode gained: the bound stays at 1
+    # the same rates on more instances pin the difference down more tightly
+    assert paired_difference_interval(20, 8, 2, 10)[0] > paired_difference_interval(10, 4, 1, 5)[0]
