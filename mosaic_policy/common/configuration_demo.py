@@ -108,7 +108,7 @@ class DemoConditionedConfig(PreTrainedConfig):
     # Inference: hand out only the first n targets of each chunk, then query the policy again (LeRobot's ACT and
     # Diffusion name it so); unset: the whole chunk. Fewer steps per query react sooner to where the hand is.
     n_action_steps: int | None = None
-    # Keep an exponential moving average of the weights with this decay (e.g. 0.995: about the last 200 steps;
+    # Keep an exponential moving average of the weights with this decay (e.g. 0.998: about the last 500 steps;
     # warmed up over the first steps) and act with it; unset: act with the trained weights. The average is saved in
     # the checkpoint beside them (twice the file), so resuming goes on training the trained weights.
     weight_average_decay: float | None = None
@@ -198,7 +198,7 @@ class DemoConditionedConfig(PreTrainedConfig):
         if self.weight_average_decay is not None and not 0.0 < self.weight_average_decay < 1.0:
             raise ValueError(
                 f"`weight_average_decay` must be in (0, 1), got {self.weight_average_decay}: pass e.g. "
-                "--policy.weight_average_decay=0.995, or leave it unset to act with the trained weights."
+                "--policy.weight_average_decay=0.998, or leave it unset to act with the trained weights."
             )
         if not 0.0 <= self.lr_final_ratio <= 1.0:
             raise ValueError(f"`lr_final_ratio` must be in [0, 1], got {self.lr_final_ratio}.")

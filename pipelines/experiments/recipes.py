@@ -72,7 +72,7 @@ ABLATIONS: dict[str, tuple[str, tuple[str, ...]]] = {
         "this project: actions a wrong demonstration must not explain",
         ("--policy.wrong_demo_loss_weight=10", "--policy.wrong_demo_partner=nearest"),
     ),
-    "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.995",)),
+    "weight_average": ("this project: acting with averaged weights", ("--policy.weight_average_decay=0.998",)),
     "one_mixture": ("this project: one logistic per action dimension", ("--policy.n_mixtures=1",)),
     "one_mixture_wrong_demo": (
         "this project: one logistic per action dimension that a wrong demonstration must not explain",

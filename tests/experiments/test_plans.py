@@ -322,7 +322,8 @@ def test_the_report_names_the_training_options_of_its_preset():
     assert "lerobot-train options of every run: `--policy.action_chunk=10`." in text
     assert ("Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true "
             "--policy.variation_loss_weight=20 --policy.hand_relative_targets=true --policy.n_mixtures=1 "
-            "--policy.wrong_demo_loss_weight=10 --policy.temporal_ensemble_coeff=0.01`.") in text
+            "--policy.wrong_demo_loss_weight=10 --policy.temporal_ensemble_coeff=0.01 "
+            "--policy.weight_average_decay=0.998`.") in text
     assert "Of MOSAIC's runs" not in settings_text("quick", PRESETS["quick"], [])
     with_summary = resolve_preset("quick", ["mosaic_options=--policy.demo_summary=true"])
     assert "Of MOSAIC's runs (not the ablations' rows): `--policy.demo_summary=true`." in settings_text(

@@ -110,7 +110,7 @@ def trained_checkpoints(door_datasets, tmp_path_factory):
                 "--policy.embed_dim=32",
                 "--policy.head_hidden_dim=32",
                 "--policy.demo_loader_threads=1",
-                "--policy.weight_average_decay=0.9",  # every type acts below with its averaged weights
+                "--policy.weight_average_decay=0.9",  # every type acts below with its averaged weights (MOSAIC: the preset's)
                 *small_flags(policy_type),
                 *(CPU_MOSAIC_OPTIONS if policy_type == "mosaic" else ()),  # MOSAIC as the cpu preset trains it
             ],
@@ -134,8 +134,8 @@ def test_every_trained_checkpoint_loads_through_lerobots_factory_and_acts(traine
     for policy_type, checkpoint in trained_checkpoints.items():
         config = PreTrainedConfig.from_pretrained(checkpoint)
         assert config.type == policy_type and config.demo_root is None
-        if policy_type == "mosaic":  # the cpu preset's checkpoints act with temporal ensembling by default
-            assert config.temporal_ensemble_coeff == 0.01
+        if policy_type == "mosaic":  # the cpu preset's checkpoints act with ensembling and averaged weights by default
+            assert config.temporal_ensemble_coeff == 0.01 and config.weight_average_decay == 0.998
         policy = get_policy_class(policy_type).from_pretrained(checkpoint, config=config).eval()
         assert policy.acting_model is policy.averaged_model and int(policy.weight_average_updates) == 2, policy_type
         preprocessor, postprocessor = make_pre_post_processors(config, pretrained_path=str(checkpoint))

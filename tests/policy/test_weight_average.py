@@ -41,7 +41,7 @@ def test_the_decay_warms_up_to_the_configured_one():
 
 
 def test_a_decay_outside_0_1_names_the_fix():
-    with pytest.raises(ValueError, match=r"weight_average_decay.*--policy.weight_average_decay=0.995"):
+    with pytest.raises(ValueError, match=r"weight_average_decay.*--policy.weight_average_decay=0.998"):
         small_config(weight_average_decay=1.0)
 
 
