@@ -100,13 +100,13 @@ def pair_episodes(before: list[dict[str, Any]], after: list[dict[str, Any]]) -> 
     before_labels, after_labels = _labels(before), _labels(after)
     shared = [label for label in before_labels if label in after_labels]
     notes = []
-    if shared:
-        renamed = {label: label for label in shared}
-        left_out = [label for label in before_labels + after_labels if label not in renamed]
+    if shared:  # partner: each paired checkpoint's label in the first result -> its label in the second
+        partner = {label: label for label in shared}
+        left_out = [label for label in before_labels + after_labels if label not in partner]
         if left_out:
             notes.append(f"left out, evaluated on one side only: {', '.join(left_out)}")
     elif len(before_labels) == len(after_labels):
-        renamed = dict(zip(after_labels, before_labels))
+        partner = dict(zip(before_labels, after_labels))
         notes.append("no checkpoint in common: paired by their order in each result")
     else:
         raise EvaluationError(
@@ -120,8 +120,8 @@ def pair_episodes(before: list[dict[str, Any]], after: list[dict[str, Any]]) -> 
             for e in episodes if str(e["agent"]) in names
         }
 
-    first = keyed(before, {label: label for label in (shared or before_labels)})
-    second = keyed(after, renamed)
+    first = keyed(before, {label: label for label in partner})
+    second = keyed(after, {label: first_label for first_label, label in partner.items()})
     if first.keys() != second.keys():
         raise EvaluationError(
             f"the paired checkpoints ran different episodes ({len(first.keys() - second.keys())} only in the first "
@@ -139,9 +139,7 @@ def pair_episodes(before: list[dict[str, Any]], after: list[dict[str, Any]]) -> 
                 "with the same --seed and demonstrations"
             )
         pairs.append((one, other))
-    after_names = {label: after_label for after_label, label in renamed.items()}
-    checkpoints = [(label, after_names[label]) for label in (shared or before_labels)]
-    return Pairing(pairs, checkpoints, notes)
+    return Pairing(pairs, list(partner.items()), notes)
 
 
 def _other_goal(episode: dict[str, Any]) -> bool:

@@ -22,10 +22,11 @@ Z_95 = 1.96
 """The normal quantile of a two-sided 95% interval."""
 
 
-def wilson_interval(successes: float, episodes: int, z: float = Z_95) -> tuple[float, float] | None:
+def wilson_interval(successes: float, episodes: float, z: float = Z_95) -> tuple[float, float] | None:
     """(low, high) of the success rate after ``successes`` in ``episodes`` trials; None without episodes (no rate).
 
-    ``successes`` may be fractional: ``episodes`` times a rate averaged over checkpoints on the same episodes."""
+    ``successes`` may be fractional: ``episodes`` times a rate averaged over checkpoints on the same episodes
+    (``episodes`` too, as a sum of such averaged counts in :func:`paired_difference_interval`)."""
     if episodes == 0:
         return None
     if not 0 <= successes <= episodes:
@@ -68,8 +69,8 @@ def paired_difference_interval(
     if episodes <= 0:
         return None
     after, before = (both + after_only) / episodes, (both + before_only) / episodes
-    after_low, after_high = wilson_interval(min(both + after_only, episodes), episodes, z)  # type: ignore[arg-type]
-    before_low, before_high = wilson_interval(min(both + before_only, episodes), episodes, z)  # type: ignore[arg-type]
+    after_low, after_high = wilson_interval(min(both + after_only, episodes), episodes, z)
+    before_low, before_high = wilson_interval(min(both + before_only, episodes), episodes, z)
     spread = (both + after_only) * (before_only + neither) * (both + before_only) * (after_only + neither)
     association = both * neither - after_only * before_only
     if association > 0:
