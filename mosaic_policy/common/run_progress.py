@@ -25,8 +25,8 @@ _current: weakref.ref | None = None
 
 LR_SCHEDULES = ("constant", "cosine")
 """``constant``: the optimiser's rate throughout (the paper). ``cosine``: half a cosine from it down to
-``final_lr_ratio`` of it at the run's last step, the usual remedy for a noisy last iterate; the README measures what
-it does on door at the ``cpu`` experiment preset."""
+``final_lr_ratio`` of it at the run's last step, the usual remedy for a noisy last iterate; docs/cpu_learning.md
+measures what it does on door at the ``cpu`` experiment preset."""
 
 
 class RunProgressScheduler(LambdaLR):

@@ -16,7 +16,7 @@ demonstration the model finds most alike ("nearest", by the cosine of the attend
 embeddings). A partner taken in batch order is often a variation far from the sample's (the other press_button
 machine), whose likelihoods a small shift of the target already separates; the nearest one is meant to be the
 variation the policy confuses (the neighbouring button). Compared only with it, the policy never learns the coarse
-difference: on press_button "nearest" is a measured loss (README).
+difference: on press_button "nearest" is a measured loss (docs/cpu_learning.md).
 """
 
 from collections.abc import Sequence

@@ -76,7 +76,7 @@ ensembling (a chunk every control step, each target the mean of the chunks that 
 75.0% over four runs' same weights and press_button from 81.7% to 93.1% over three. Acting with the weights
 averaged over about the last 500 steps (the trained ones are kept beside them in the checkpoint) took three door
 runs from 53.8% with their trained weights to 82.1% on the same episodes (each run gaining 12.5-47.5 points): the
-trained weights at the last step get some variations right and miss others (the README's door tables)."""
+trained weights at the last step get some variations right and miss others (docs/cpu_learning.md)."""
 
 PRESETS: dict[str, ExperimentPreset] = {
     "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
