@@ -74,9 +74,10 @@ one logistic per action dimension with the wrong-demonstration loss makes it pre
 at the same success on door. The last two are how the checkpoint acts, not how it learns. ACT's temporal
 ensembling (a chunk every control step, each target the mean of the chunks that cover it) took door from 65.0% to
 75.0% over four runs' same weights and press_button from 81.7% to 93.1% over three. Acting with the weights
-averaged over about the last 500 steps (the trained ones are kept beside them in the checkpoint) took three door
-runs from 53.8% with their trained weights to 82.1% on the same episodes (each run gaining 12.5-47.5 points): the
-trained weights at the last step get some variations right and miss others (docs/cpu_learning.md)."""
+averaged over about the last 500 steps (the trained ones are kept beside them in the checkpoint) lifted four door
+runs by 12.5-47.5 points each over their trained weights on the same episodes: the trained weights at the last step
+get some variations right and miss others. With all seven, five door runs reach 83.2% and one press_button run
+95.0% (docs/cpu_learning.md)."""
 
 PRESETS: dict[str, ExperimentPreset] = {
     "paper": ExperimentPreset(device="cuda", workers=8, num_workers=4),
